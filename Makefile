@@ -1,0 +1,37 @@
+# SCET: `make demo` runs the main job on the default scene, `make test` runs the test suite.
+# Both set everything up first: a virtual environment in .venv with the package and all its
+# extras, and (as root, on Debian) libllvm19 for Mitsuba's LLVM backend.
+
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.scet-installed
+PYTEST_ARGS ?=
+
+.PHONY: setup demo test test-slow bench clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[all]'
+	bash tools/install-llvm.sh
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/scet demo
+
+# pytest exits 5 when it collected no test: that is a failure here, not a pass.
+test: $(STAMP)
+	@$(PY) -m pytest -m "not slow" $(PYTEST_ARGS); rc=$$?; \
+	if [ $$rc -eq 5 ]; then echo "error: pytest collected no tests" >&2; exit 1; fi; exit $$rc
+
+test-slow: $(STAMP)
+	$(PY) -m pytest -m slow $(PYTEST_ARGS)
+
+bench: $(STAMP)
+	$(PY) benchmarks/bench_projection.py
+
+clean:
+	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis

@@ -1,0 +1,106 @@
+"""Eye model: a sphere rotating about its centre with an off-centre spherical corneal cap.
+
+Böhme et al. (2008), as used in Sec. 2.1 of the SCET paper: the cornea is a sphere of radius
+r_c whose centre sits r_co in front of the eyeball rotation centre c_e, so a rotation of the eye
+moves the cornea (a moving spherical mirror). The cap ends at the limbus, ``limbus_depth_m``
+behind the corneal apex. The optical and visual axes coincide here (no angle kappa), as in the
+paper's simulation.
+
+Eye rotations are Fick angles: ``yaw`` about the world vertical (positive toward +x), then
+``pitch`` about the rotated horizontal axis (positive up). At yaw = pitch = 0 the eye looks
+along -z, toward the screen.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .geometry import as_points
+
+#: Böhme et al. (2008) eye: corneal radius, rotation-centre-to-cornea-centre distance and
+#: limbus depth behind the apex, all in metres. Other corneal radii scale the last two.
+BOHME_CORNEA_RADIUS_M = 7.98e-3
+BOHME_CORNEA_OFFSET_M = 4.35e-3
+BOHME_LIMBUS_DEPTH_M = 3.54e-3
+CORNEA_REFRACTIVE_INDEX = 1.376
+
+
+def gaze_direction(yaw_rad, pitch_rad) -> np.ndarray:
+    """(..., 3) unit optical-axis directions for Fick angles (radians)."""
+    yaw = np.asarray(yaw_rad, dtype=np.float64)
+    pitch = np.asarray(pitch_rad, dtype=np.float64)
+    cp = np.cos(pitch)
+    return np.stack(np.broadcast_arrays(cp * np.sin(yaw), np.sin(pitch), -cp * np.cos(yaw)), axis=-1)
+
+
+def fick_angles(direction) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`gaze_direction`: (yaw, pitch) in radians of (..., 3) directions."""
+    d = as_points(direction, "direction")
+    d = d / np.linalg.norm(d, axis=-1, keepdims=True)
+    pitch = np.arcsin(np.clip(d[..., 1], -1.0, 1.0))
+    yaw = np.arctan2(d[..., 0], -d[..., 2])
+    return yaw, pitch
+
+
+def eye_rotation_matrix(yaw_rad: float, pitch_rad: float) -> np.ndarray:
+    """(3, 3) rotation taking the primary-position eye frame to the rotated one (Fick order)."""
+    cy, sy = np.cos(yaw_rad), np.sin(yaw_rad)
+    cp, sp = np.cos(pitch_rad), np.sin(pitch_rad)
+    # Yaw about world y by -yaw (so that +yaw turns -z toward +x), then pitch about local x.
+    Ry = np.array([[cy, 0.0, -sy], [0.0, 1.0, 0.0], [sy, 0.0, cy]])
+    Rx = np.array([[1.0, 0.0, 0.0], [0.0, cp, -sp], [0.0, sp, cp]])
+    return Ry @ Rx
+
+
+@dataclass(frozen=True, slots=True)
+class Eye:
+    """Geometry of one eye (SI units)."""
+
+    rotation_center_m: np.ndarray
+    cornea_radius_m: float = 7.8e-3
+    cornea_offset_m: float = BOHME_CORNEA_OFFSET_M * 7.8e-3 / BOHME_CORNEA_RADIUS_M
+    limbus_depth_m: float = BOHME_LIMBUS_DEPTH_M * 7.8e-3 / BOHME_CORNEA_RADIUS_M
+    refractive_index: float = CORNEA_REFRACTIVE_INDEX
+
+    def __post_init__(self):
+        c = as_points(self.rotation_center_m, "rotation_center_m").reshape(3).copy()
+        c.setflags(write=False)
+        object.__setattr__(self, "rotation_center_m", c)
+        for name in ("cornea_radius_m", "cornea_offset_m", "limbus_depth_m", "refractive_index"):
+            object.__setattr__(self, name, float(getattr(self, name)))
+        if not 0 < self.limbus_depth_m < 2 * self.cornea_radius_m:
+            raise ValueError("limbus depth must lie between 0 and the corneal diameter")
+
+    @classmethod
+    def scaled(cls, rotation_center_m, cornea_radius_m: float, **kwargs) -> "Eye":
+        """Böhme's eye scaled to ``cornea_radius_m`` (offset and limbus depth scale with it)."""
+        s = cornea_radius_m / BOHME_CORNEA_RADIUS_M
+        kwargs.setdefault("cornea_offset_m", BOHME_CORNEA_OFFSET_M * s)
+        kwargs.setdefault("limbus_depth_m", BOHME_LIMBUS_DEPTH_M * s)
+        return cls(rotation_center_m, cornea_radius_m, **kwargs)
+
+    @property
+    def cap_cos_min(self) -> float:
+        """Cosine of the cap's half angle: a surface point with unit normal n is on the cornea
+        iff ``n · axis >= cap_cos_min``."""
+        return 1.0 - self.limbus_depth_m / self.cornea_radius_m
+
+    @property
+    def limbus_radius_m(self) -> float:
+        c = self.cap_cos_min
+        return self.cornea_radius_m * float(np.sqrt(max(0.0, 1.0 - c * c)))
+
+    def cornea_center(self, yaw_rad, pitch_rad) -> np.ndarray:
+        """(..., 3) cornea centre for Fick angles."""
+        return self.rotation_center_m + self.cornea_offset_m * gaze_direction(yaw_rad, pitch_rad)
+
+    def apex(self, yaw_rad=0.0, pitch_rad=0.0) -> np.ndarray:
+        """(..., 3) corneal apex for Fick angles."""
+        d = gaze_direction(yaw_rad, pitch_rad)
+        return self.rotation_center_m + (self.cornea_offset_m + self.cornea_radius_m) * d
+
+    def angles_toward(self, targets_m) -> tuple[np.ndarray, np.ndarray]:
+        """Fick angles (radians) that point the optical axis at (..., 3) world targets."""
+        return fick_angles(as_points(targets_m, "targets_m") - self.rotation_center_m)

@@ -1,0 +1,199 @@
+"""The ``scet`` command line: one command, one subcommand per job.
+
+Heavy imports happen inside the subcommand that needs them. Errors in the user's input (a bad
+scene file, a bad target spec) print one line naming the problem and exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+def _print_table(rows: list[list[str]], header: list[str], out=None) -> None:
+    out = sys.stdout if out is None else out
+    widths = [max(len(str(c)) for c in col) for col in zip(header, *rows)]
+    fmt = "  ".join(f"{{:>{w}}}" for w in widths)
+    print(fmt.format(*header), file=out)
+    for row in rows:
+        print(fmt.format(*row), file=out)
+
+
+def _describe(setup) -> str:
+    cam, sen, st = setup.camera, setup.sensor, setup.strobe
+    return (f"scene {setup.name} ({setup.source})\n"
+            f"  camera {cam.width_px}x{cam.height_px} px, f = {cam.fx_px:g} px, at "
+            f"{np.round(cam.position_m * 1e3, 2).tolist()} mm\n"
+            f"  eye r_c = {setup.eye.cornea_radius_m * 1e3:g} mm, r_co = "
+            f"{setup.eye.cornea_offset_m * 1e3:.3f} mm, limbus {setup.eye.limbus_depth_m * 1e3:.3f} mm "
+            f"behind the apex\n"
+            f"  {setup.lights.count} lights in {len(setup.lights.groups)} group(s): "
+            + ", ".join(f"{g.name} ({g.kind}, {g.count})" for g in setup.lights.groups) + "\n"
+            f"  sensor S = {sen.total_lines}, N = {sen.visible_lines}, frame {sen.frame_period_s * 1e3:g} ms, "
+            f"exposure {sen.exposure_s * 1e6:g} us\n"
+            f"  strobe {st.pulses_per_frame} pulses/frame of {st.pulse_s * 1e6:g} us every "
+            f"{st.period_s * 1e6:g} us, phase {st.phase_s * 1e6:g} us")
+
+
+def cmd_scenes(args) -> int:
+    from estimator.scene import builtin_scenes, load_scene
+
+    for name in builtin_scenes():
+        setup = load_scene(name)
+        print(f"{name:<20} {setup.description}")
+    return 0
+
+
+def cmd_scene(args) -> int:
+    from estimator.scene import load_scene
+
+    print(_describe(load_scene(args.scene)))
+    return 0
+
+
+def cmd_bands(args) -> int:
+    from estimator.banding import band_gap_rows, band_height, partial_lines
+    from estimator.scene import load_scene
+    from scet_render.band_diagram import band_table, draw_band_diagram
+
+    setup = load_scene(args.scene)
+    sen, st = setup.sensor, setup.strobe
+    table = band_table(sen, st, args.frame)
+    rows = [[r["strobe"], f"{r['time_us']:.2f}", f"{r['frame_time_us']:.2f}", f"{r['k_first']:.2f}",
+             r["first_row"], r["last_row"], r["partial_rows"], "yes" if r["visible"] else "no",
+             f"{r['fraction_visible']:.2f}"] for r in table]
+    print(f"band layout of frame {args.frame}, scene {setup.name}: Eq. (7) band height "
+          f"{band_height(sen, st.pulse_s):.2f} rows, Eq. (5) partial lines {partial_lines(sen, st.pulse_s):.2f}, "
+          f"gap between bands {band_gap_rows(sen, st):.2f} rows (negative: overlap)")
+    _print_table(rows, ["strobe", "time_us", "in_frame_us", "k_j", "first_row", "last_row",
+                        "partial_rows", "visible", "visible_share"])
+    n_vis = sum(r["visible"] for r in table)
+    share = sum(r["fraction_visible"] for r in table)
+    print(f"{n_vis} bands touch the {sen.visible_lines} visible rows; visible share {share:.2f} "
+          f"(pulses x N / S = {st.pulses_per_frame * sen.visible_lines / sen.total_lines:.2f})")
+    if args.png:
+        path = draw_band_diagram(sen, st, args.png, frame_index=args.frame, frames=args.frames)
+        print(f"diagram written to {path}")
+    return 0
+
+
+def cmd_simulate(args) -> int:
+    from estimator.scene import load_scene
+    from scet_render.simulate import glint_statistics, parse_targets, save_observations, simulate_glints
+
+    setup = load_scene(args.scene)
+    targets = parse_targets(args.targets, setup)
+    obs = simulate_glints(setup, targets, noise_px=args.noise, noise_model=args.noise_model, rng=args.seed)
+    path = save_observations(args.out, obs, setup)
+    stats = glint_statistics(obs)
+    print(f"{stats['targets']} targets x {stats['lights']} lights, e_f = {args.noise:g} px "
+          f"({args.noise_model}), seed {args.seed}: visible glints per target min {stats['visible_min']}, "
+          f"mean {stats['visible_mean']:.2f}, max {stats['visible_max']}; written to {path}")
+    return 0
+
+
+def band_glint_counts(setup, obs) -> list[dict]:
+    """For each visible band of frame 0: the rows it dominates and how many glints of each
+    target land there (which limits the samples one band can give)."""
+    from estimator.banding import NO_PULSE, row_strobe
+
+    pulse, _, _ = row_strobe(setup.sensor, setup.strobe, 0)
+    v = np.round(obs.glints_true_px[..., 1])
+    rows = []
+    for j in np.unique(pulse[pulse != NO_PULSE]):
+        lit = np.flatnonzero(pulse == j)
+        inside = obs.visible & (v >= lit[0]) & (v <= lit[-1])
+        counts = inside.sum(axis=1)
+        rows.append({"strobe": int(j), "rows": (int(lit[0]), int(lit[-1])),
+                     "glints_mean": float(counts.mean()), "glints_min": int(counts.min()),
+                     "share_none": float((counts == 0).mean()),
+                     "share_ge3": float((counts >= 3).mean())})
+    return rows
+
+
+def cmd_demo(args) -> int:
+    from estimator.scene import load_scene
+    from scet_render.simulate import glint_statistics, parse_targets, simulate_glints
+
+    setup = load_scene(args.scene)
+    print(_describe(setup))
+    print()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    rc = cmd_bands(argparse.Namespace(scene=args.scene, frame=0, frames=1, png=out / "bands.png"))
+    targets = parse_targets("grid:24x15", setup)
+    obs = simulate_glints(setup, targets, noise_px=0.5, rng=args.seed)
+    stats = glint_statistics(obs)
+    print()
+    print(f"feature-level simulation, 24 x 15 screen grid, e_f = 0.5 px uniform, seed {args.seed}:")
+    print(f"  visible glints per target: min {stats['visible_min']}, mean {stats['visible_mean']:.2f}, "
+          f"max {stats['visible_max']} of {stats['lights']}; targets with none: {stats['targets_without_glints']}")
+    print(f"  glint spread per target: {stats['spread_u_px_mean']:.1f} px across, "
+          f"{stats['spread_v_px_mean']:.1f} px down (mean)")
+    print("  glints per target inside each visible band of frame 0:")
+    table = band_glint_counts(setup, obs)
+    _print_table([[r["strobe"], f"{r['rows'][0]}-{r['rows'][1]}", f"{r['glints_mean']:.2f}", r["glints_min"],
+                   f"{100 * r['share_none']:.1f}", f"{100 * r['share_ge3']:.1f}"] for r in table],
+                 ["strobe", "rows", "mean", "min", "% none", "% >= 3"])
+    path = out / "glints.npz"
+    from scet_render.simulate import save_observations
+
+    save_observations(path, obs, setup)
+    print(f"\nglints written to {path}, band diagram to {out / 'bands.png'}")
+    return rc
+
+
+def build_parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(prog="scet", description="Stroboscopic catadioptric eye tracking toolkit.")
+    sub = ap.add_subparsers(dest="command", required=True)
+    scene_help = "scene file or built-in scene name (default: paper_sim)"
+
+    p = sub.add_parser("scenes", help="list the built-in scenes")
+    p.set_defaults(func=cmd_scenes)
+
+    p = sub.add_parser("scene", help="load (and so validate) a scene file and describe it")
+    p.add_argument("scene", nargs="?", help=scene_help)
+    p.set_defaults(func=cmd_scene)
+
+    p = sub.add_parser("bands", help="band layout of a frame (table) and a diagram like the paper's Fig. 2")
+    p.add_argument("scene", nargs="?", help=scene_help)
+    p.add_argument("--frame", type=int, default=0, help="frame index (default 0)")
+    p.add_argument("--frames", type=int, default=1, help="frames drawn in the diagram (default 1)")
+    p.add_argument("--png", type=Path, help="write the diagram to this PNG")
+    p.set_defaults(func=cmd_bands)
+
+    p = sub.add_parser("simulate", help="feature-level simulation: glints of every light for every target")
+    p.add_argument("scene", nargs="?", help=scene_help)
+    p.add_argument("--targets", default="grid:24x15",
+                   help="grid:COLSxROWS (cell centres), calib:COLSxROWS (edge to edge), centre, or a CSV "
+                        "of x_m,y_m,z_m (default grid:24x15)")
+    p.add_argument("--noise", type=float, default=0.5, help="feature position error e_f in px (default 0.5)")
+    p.add_argument("--noise-model", choices=("uniform", "gaussian"), default="uniform")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--out", type=Path, required=True, help="output file, .npz or .csv")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("demo", help="the main job on a scene: band layout and glint statistics")
+    p.add_argument("scene", nargs="?", help=scene_help)
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
+    p.set_defaults(func=cmd_demo)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    from estimator.errors import SceneError
+
+    args = build_parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except (SceneError, ValueError, OSError) as exc:
+        print(f"scet {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
