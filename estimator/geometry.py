@@ -111,3 +111,22 @@ class RigidPose:
 
     def inverse(self) -> "RigidPose":
         return RigidPose(self.rotation.T, -self.rotation.T @ self.translation_m)
+
+
+def rotations_from_vectors(rotvecs) -> np.ndarray:
+    """(..., 3, 3) rotations from (..., 3) rotation vectors, vectorised (Rodrigues' formula).
+
+    Zero vectors give the identity; non-finite vectors give NaN matrices (no exception), so a
+    batch with failed samples stays a batch.
+    """
+    r = as_points(rotvecs, "rotvecs")
+    angle = np.linalg.norm(r, axis=-1)
+    small = angle < 1e-12
+    safe = np.where(small, 1.0, angle)
+    k = r / safe[..., None]
+    zero = np.zeros_like(angle)
+    kx = np.stack([zero, -k[..., 2], k[..., 1], k[..., 2], zero, -k[..., 0], -k[..., 1], k[..., 0], zero],
+                  axis=-1).reshape(r.shape[:-1] + (3, 3))
+    s = np.where(small, 0.0, np.sin(angle))[..., None, None]
+    c = np.where(small, 0.0, 1 - np.cos(angle))[..., None, None]
+    return np.eye(3) + s * kx + c * (kx @ kx)

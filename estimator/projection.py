@@ -171,6 +171,35 @@ def _quartic_root(alpha, beta, phi):
     return _newton_root(alpha, beta, phi, theta)
 
 
+def _solve(camera_position_m, cornea_center_m, cornea_radius_m, lights_world_m, solver):
+    """Reflection points and the in-plane quantities the Jacobians reuse."""
+    c, r, e1, e2, alpha, beta, phi = _plane_frame(
+        camera_position_m, cornea_center_m, cornea_radius_m, lights_world_m)
+    outside = (alpha > 1) & (beta > 1)
+    # With the camera or a light inside the sphere there is no reflection; solve a harmless
+    # stand-in problem there so that the iteration's stopping test only sees real ones.
+    alpha = np.where(outside, alpha, 2.0)
+    beta = np.where(outside, beta, 2.0)
+    if solver == "newton":
+        # First-order closed form around the bisector (exact for a distant camera and light).
+        half = phi / 2
+        denom = 2 * alpha * beta - (alpha + beta) * np.cos(half)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            theta0 = half + (alpha - beta) * np.sin(half) / denom
+        theta0 = np.where(np.isfinite(theta0), theta0, half)
+        theta = _newton_root(alpha, beta, phi, theta0)
+    elif solver == "quartic":
+        theta = _quartic_root(alpha, beta, phi)
+    else:
+        raise ValueError(f"solver must be 'newton' or 'quartic', got {solver!r}")
+    ct, st = np.cos(theta), np.sin(theta)
+    normals = np.stack([ct * a + st * b for a, b in zip(e1, e2)], axis=-1)
+    r_b = r[..., None, None] if r.ndim else r
+    points = c[..., None, :] + r_b * normals
+    ok = outside & (alpha * ct > 1) & (beta * np.cos(phi - theta) > 1)
+    return points, normals, ok, (e1, e2, ct, st, alpha, beta, phi, r)
+
+
 def reflection_points(camera_position_m, cornea_center_m, cornea_radius_m, lights_world_m, *,
                       solver: str = "newton"):
     """3D reflection points of lights on the corneal sphere.
@@ -198,30 +227,8 @@ def reflection_points(camera_position_m, cornea_center_m, cornea_radius_m, light
         True where the reflection exists and is seen: camera and light outside the sphere and
         both on the outer side of the tangent plane at G_s.
     """
-    c, r, e1, e2, alpha, beta, phi = _plane_frame(
-        camera_position_m, cornea_center_m, cornea_radius_m, lights_world_m)
-    outside = (alpha > 1) & (beta > 1)
-    # With the camera or a light inside the sphere there is no reflection; solve a harmless
-    # stand-in problem there so that the iteration's stopping test only sees real ones.
-    alpha = np.where(outside, alpha, 2.0)
-    beta = np.where(outside, beta, 2.0)
-    if solver == "newton":
-        # First-order closed form around the bisector (exact for a distant camera and light).
-        half = phi / 2
-        denom = 2 * alpha * beta - (alpha + beta) * np.cos(half)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            theta0 = half + (alpha - beta) * np.sin(half) / denom
-        theta0 = np.where(np.isfinite(theta0), theta0, half)
-        theta = _newton_root(alpha, beta, phi, theta0)
-    elif solver == "quartic":
-        theta = _quartic_root(alpha, beta, phi)
-    else:
-        raise ValueError(f"solver must be 'newton' or 'quartic', got {solver!r}")
-    ct, st = np.cos(theta), np.sin(theta)
-    normals = np.stack([ct * a + st * b for a, b in zip(e1, e2)], axis=-1)
-    r_b = r[..., None, None] if r.ndim else r
-    points = c[..., None, :] + r_b * normals
-    ok = outside & (alpha * ct > 1) & (beta * np.cos(phi - theta) > 1)
+    points, normals, ok, _ = _solve(camera_position_m, cornea_center_m, cornea_radius_m,
+                                    lights_world_m, solver)
     return points, normals, ok
 
 
@@ -301,12 +308,18 @@ def project_glints(camera: Camera, cornea_center, cornea_radius, lights_world, *
 _BLOCK_PAIRS = 8192
 
 
-def _project_block(camera, center, radius, lights, axis, cap_cos_min, solver, return_points):
-    points, normals, ok = reflection_points(camera.position_m, center, radius, lights, solver=solver)
+def _visibility(camera, points, normals, ok, axis, cap_cos_min):
+    """Pixels of reflection points, and which glints are seen: on the cap, in the image."""
     if axis is not None:
-        ok &= np.einsum("...nk,...k->...n", normals, axis) >= cap_cos_min
+        ok = ok & (np.einsum("...nk,...k->...n", normals, axis) >= cap_cos_min)
     glints, depth = camera.project(points)
     visible = ok & (depth > 0) & camera.in_image(np.nan_to_num(glints, nan=-1e9))
+    return glints, visible
+
+
+def _project_block(camera, center, radius, lights, axis, cap_cos_min, solver, return_points):
+    points, normals, ok, _ = _solve(camera.position_m, center, radius, lights, solver)
+    glints, visible = _visibility(camera, points, normals, ok, axis, cap_cos_min)
     if return_points:
         return glints, visible, points
     return glints, visible
@@ -346,3 +359,78 @@ def reflect_pixel_rays(camera: Camera, cornea_center, cornea_radius, pixels_px):
     n = (points - c) / r
     directions = d - 2 * np.sum(d * n, axis=-1, keepdims=True) * n
     return hit, points, directions
+
+
+
+def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, *,
+                    cornea_axis=None, cap_cos_min: float | None = None):
+    """Glints and their derivatives with respect to the cornea centre, the corneal radius and
+    the light positions, in closed form.
+
+    Implicit differentiation of the law of reflection at P = c + r n: with u, w the unit vectors
+    from P to the camera and to the light (distances d_u, d_w), i the angle of incidence, t the
+    in-plane tangent toward the camera (u = cos i n + sin i t, w = cos i n - sin i t) and k the
+    normal of the plane of reflection, the tangential part of u + w must stay zero. In the
+    (n, t, k) frame the linearised condition is diagonal, which gives, with H = 1/d_u + 1/d_w,
+    D = 1/d_w - 1/d_u, g = 2 + r H cos i and w' = sin i n + cos i t,
+
+        dP/dc = n nᵀ + (2/g) t tᵀ - (r D sin i / g) t nᵀ + (2 cos i / (2 cos i + r H)) k kᵀ
+        dP/dr = n - (r D sin i / g) t
+        dP/dL = (r / d_w) [ t w'ᵀ / g + k kᵀ / (2 cos i + r H) ]
+
+    followed by the pinhole Jacobian. About five times cheaper than general 3x3 algebra, and
+    checked against finite differences in the tests.
+
+    Returns
+    -------
+    glints_px : (..., n, 2)
+    visible : (..., n) bool
+    d_center : (..., n, 2, 3)
+        d glint / d cornea centre (px per metre).
+    d_radius : (..., n, 2)
+        d glint / d corneal radius (px per metre).
+    d_light : (..., n, 2, 3)
+        d glint / d light position (px per metre).
+    """
+    axis = None if cornea_axis is None else as_points(cornea_axis, "cornea_axis")
+    if (axis is None) != (cap_cos_min is None):
+        raise ValueError("cornea_axis and cap_cos_min must be given together")
+    points, n, ok, (e1, e2, ct, st, alpha, beta, phi, r) = _solve(
+        camera.position_m, cornea_center, cornea_radius, lights_world, "newton")
+    glints, visible = _visibility(camera, points, n, ok, axis, cap_cos_min)
+    rr = r[..., None] if r.ndim else r
+    # Distances and incidence angle from the in-plane solution (scaled by r).
+    qa = np.sqrt(np.maximum(alpha * alpha - 2 * alpha * ct + 1, 1e-300))
+    cpt = np.cos(phi) * ct + np.sin(phi) * st  # cos(φ - θ)
+    qb = np.sqrt(np.maximum(beta * beta - 2 * beta * cpt + 1, 1e-300))
+    cos_i = (alpha * ct - 1) / qa
+    sin_i = alpha * st / qa
+    inv_du, inv_dw = 1 / (rr * qa), 1 / (rr * qb)
+    H, D = inv_du + inv_dw, inv_dw - inv_du
+    g = 2 + rr * H * cos_i
+    qk = 2 * cos_i + rr * H
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a_t, b_tn, a_k = 2 / g, rr * D * sin_i / g, 2 * cos_i / qk
+        l_t, l_k = rr * inv_dw / g, rr * inv_dw / qk
+    t = np.stack([st * x - ct * y for x, y in zip(e1, e2)], axis=-1)
+    k = np.stack([e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
+                  e1[0] * e2[1] - e1[1] * e2[0]], axis=-1)
+    # Pinhole Jacobian applied to the frame vectors: 2-vectors J_pi v.
+    pc = (points - camera.position_m) @ camera.rotation.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        iz = 1 / pc[..., 2]
+    xz, yz = pc[..., 0] * iz, pc[..., 1] * iz
+
+    def jpi(v):
+        vc = v @ camera.rotation.T
+        return np.stack([camera.fx_px * iz * (vc[..., 0] - xz * vc[..., 2]),
+                         camera.fy_px * iz * (vc[..., 1] - yz * vc[..., 2])], axis=-1)
+
+    Pn, Pt, Pk = jpi(n), jpi(t), jpi(k)
+    outer = lambda p, v: p[..., :, None] * v[..., None, :]  # noqa: E731
+    d_center = (outer(Pn - b_tn[..., None] * Pt, n) + outer(a_t[..., None] * Pt, t)
+                + outer(a_k[..., None] * Pk, k))
+    d_radius = Pn - b_tn[..., None] * Pt
+    w_perp = sin_i[..., None] * n + cos_i[..., None] * t
+    d_light = outer(l_t[..., None] * Pt, w_perp) + outer(l_k[..., None] * Pk, k)
+    return glints, visible, d_center, d_radius, d_light

@@ -1,0 +1,280 @@
+"""Cornea fits: the cornea centre (and radius, and lighting pose) from detected glints.
+
+Sec. 2.2 of the SCET paper: minimise the sum of squared distances between the detected glints
+and the glints re-projected by the closed-form forward projection. Three models:
+
+- ``"center"``: the cornea centre c (3 unknowns; known r_c and lighting), for polynomial gaze;
+- ``"orbit"``: the cornea centre on a sphere of radius r_co about the eye centre c_e, in Fick
+  angles (2 unknowns), for geometric gaze (Sec. 2.2.1);
+- ``"full"``: c, r_c and the lighting's rigid pose (10 unknowns), for calibration (Sec. 2.4).
+
+Two solvers for each: the paper's trust-region-reflective ``scipy.optimize.least_squares``
+with bounds, one sample at a time (``solver="trf"``, the reference), and our batched
+Levenberg-Marquardt in numpy (``solver="lm"``), which solves many samples at once with the
+closed-form glint Jacobians of :func:`estimator.projection.glint_jacobians` and takes a warm
+start. Missing glints are masks. A sample with too few glints for its unknowns is NaN with the
+reason ``"too_few_glints"``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from .camera import Camera
+from .eye import gaze_direction
+from .geometry import rotations_from_vectors
+from .projection import glint_jacobians, project_glints
+
+MODELS = {"center": 3, "orbit": 2, "full": 10}
+#: Reason codes of a fit, per sample.
+OK, TOO_FEW_GLINTS, NOT_CONVERGED, NON_FINITE = "ok", "too_few_glints", "not_converged", "non_finite"
+
+#: LM stops when the step is below this in every unknown's natural unit (m, rad), or the cost
+#: changes by less than ``_FTOL`` relatively: 1e-10 m is 1e-8 of the corneal radius, far below
+#: what 0.1 px of glint noise can resolve (~1e-6 m).
+_XTOL = 1e-10
+_FTOL = 1e-14
+
+
+@dataclass(frozen=True, slots=True)
+class CorneaFit:
+    """Per-sample results of a cornea fit (B samples).
+
+    Attributes
+    ----------
+    center_m : (B, 3) float
+        Cornea centre; NaN where the fit failed.
+    radius_m : (B,) float
+        Corneal radius (fitted by ``"full"``, given otherwise).
+    angles_rad : (B, 2) float
+        Fick (yaw, pitch) of the centre about the eye centre (``"orbit"`` only, else NaN).
+    light_pose_rotvec : (B, 3) float
+        Rotation vector of the lighting relative to its nominal pose about its centroid
+        (``"full"`` only, else NaN).
+    light_pose_translation_m : (B, 3) float
+        Translation of the lighting relative to its nominal pose (``"full"`` only, else NaN).
+    rms_px : (B,) float
+        Root mean square glint residual.
+    glints_used : (B,) int
+    iterations : (B,) int
+    reason : (B,) str
+        ``"ok"``, ``"too_few_glints"``, ``"not_converged"`` or ``"non_finite"``.
+    """
+
+    center_m: np.ndarray
+    radius_m: np.ndarray
+    angles_rad: np.ndarray
+    light_pose_rotvec: np.ndarray
+    light_pose_translation_m: np.ndarray
+    rms_px: np.ndarray
+    glints_used: np.ndarray
+    iterations: np.ndarray
+    reason: np.ndarray
+
+    @property
+    def ok(self) -> np.ndarray:
+        return self.reason == OK
+
+
+@dataclass(frozen=True, slots=True)
+class FitProblem:
+    """What a cornea fit knows: camera, lights, and the model's fixed quantities."""
+
+    camera: Camera
+    lights_world_m: np.ndarray  # (n, 3) nominal light positions
+    cornea_radius_m: float
+    eye_center_m: np.ndarray | None = None  # "orbit"
+    orbit_radius_m: float | None = None  # "orbit"
+
+    def lights_posed(self, rotvec, translation_m) -> np.ndarray:
+        """(B, n, 3) lights moved rigidly about their centroid."""
+        L = self.lights_world_m
+        pivot = L.mean(axis=0)
+        R = rotations_from_vectors(np.atleast_2d(rotvec))
+        return np.einsum("bij,nj->bni", R, L - pivot) + pivot + np.atleast_2d(translation_m)[:, None]
+
+
+def _unpack(model, problem: FitProblem, x):
+    """Cornea centre, radius and lights (B, n, 3) or (n, 3) for parameters x (B, p)."""
+    if model == "center":
+        return x, problem.cornea_radius_m, problem.lights_world_m
+    if model == "orbit":
+        d = gaze_direction(x[:, 0], x[:, 1])
+        return problem.eye_center_m + problem.orbit_radius_m * d, problem.cornea_radius_m, problem.lights_world_m
+    return x[:, :3], x[:, 3], problem.lights_posed(x[:, 4:7], x[:, 7:10])
+
+
+def _residuals_and_jacobian(model, problem: FitProblem, x, glints, mask):
+    """Residuals (B, 2n) and Jacobian (B, 2n, p); masked glints give zero rows."""
+    center, radius, lights = _unpack(model, problem, x)
+    g, _, d_c, d_r, d_l = glint_jacobians(problem.camera, center, radius, lights)
+    res = np.where(mask[..., None], g - glints, 0.0)
+    B, n = mask.shape
+    if model == "center":
+        J = d_c
+    elif model == "orbit":
+        yaw, pitch = x[:, 0], x[:, 1]
+        cy, sy, cp, sp = np.cos(yaw), np.sin(yaw), np.cos(pitch), np.sin(pitch)
+        dd = np.stack([np.stack([cp * cy, np.zeros_like(cy), cp * sy], -1),
+                       np.stack([-sp * sy, cp, sp * cy], -1)], -1) * problem.orbit_radius_m  # (B,3,2)
+        J = d_c @ dd[:, None]
+    else:
+        # Lights depend on the pose: dL/d(rotvec) by central differences of the rotation
+        # (cheap: rotating n points), dL/dt = I.
+        h = 1e-7
+        dL_dw = np.empty((B, n, 3, 3))
+        for k in range(3):
+            e = np.zeros(3)
+            e[k] = h
+            dL_dw[..., k] = (problem.lights_posed(x[:, 4:7] + e, x[:, 7:10])
+                             - problem.lights_posed(x[:, 4:7] - e, x[:, 7:10])) / (2 * h)
+        J = np.concatenate([d_c, d_r[..., None], d_l @ dL_dw, d_l], axis=-1)
+    J = np.where(mask[..., None, None], J, 0.0)
+    return res.reshape(B, 2 * n), J.reshape(B, 2 * n, -1)
+
+
+def _prepare(glints_px, mask, n_lights, p):
+    glints = np.asarray(glints_px, dtype=np.float64)
+    if glints.ndim == 2:
+        glints = glints[None]
+    if glints.ndim != 3 or glints.shape[1:] != (n_lights, 2):
+        raise ValueError(f"glints_px must have shape (B, {n_lights}, 2), got {np.shape(glints_px)}")
+    m = np.isfinite(glints).all(-1) if mask is None else np.asarray(mask, dtype=bool).reshape(glints.shape[:2])
+    m = m & np.isfinite(glints).all(-1)
+    glints = np.where(m[..., None], glints, 0.0)
+    enough = 2 * m.sum(axis=1) >= p
+    return glints, m, enough
+
+
+def fit_cornea(problem: FitProblem, glints_px, mask=None, x0=None, *, model: str = "center",
+               solver: str = "lm", lower=None, upper=None, max_iter: int = 50) -> CorneaFit:
+    """Fit the cornea to detected glints of a batch of samples.
+
+    Parameters
+    ----------
+    problem : FitProblem
+    glints_px : (B, n, 2) or (n, 2) float
+        Detected glint of each light (any value where masked; NaN counts as missing).
+    mask : (B, n) bool, optional
+        True where light i's glint was detected. Default: the finite glints.
+    x0 : (B, p) or (p,) float
+        Initial parameters: centre (m) for ``"center"``; (yaw, pitch) in rad for ``"orbit"``;
+        centre, radius, rotation vector (rad) and translation (m) of the lighting for ``"full"``.
+    model : {"center", "orbit", "full"}
+    solver : {"lm", "trf"}
+        Our batched Levenberg-Marquardt, or the paper's scipy trust-region-reflective.
+    lower, upper : (p,) float, optional
+        Bounds (TRF enforces them; LM clips its steps to them).
+    max_iter : int
+    """
+    if model not in MODELS:
+        raise ValueError(f"model must be one of {sorted(MODELS)}, got {model!r}")
+    if model == "orbit" and (problem.eye_center_m is None or problem.orbit_radius_m is None):
+        raise ValueError("the orbit model needs eye_center_m and orbit_radius_m in the FitProblem")
+    p = MODELS[model]
+    n = problem.lights_world_m.shape[0]
+    glints, mask, enough = _prepare(glints_px, mask, n, p)
+    B = glints.shape[0]
+    x0 = np.broadcast_to(np.asarray(x0, dtype=np.float64), (B, p)).copy() if x0 is not None else None
+    if x0 is None:
+        raise ValueError("x0 (initial parameters) is required")
+    lo = np.full(p, -np.inf) if lower is None else np.asarray(lower, dtype=np.float64)
+    hi = np.full(p, np.inf) if upper is None else np.asarray(upper, dtype=np.float64)
+    if solver == "lm":
+        x, rms, iters, converged = _lm(model, problem, glints, mask, x0, enough, lo, hi, max_iter)
+    elif solver == "trf":
+        x, rms, iters, converged = _trf(model, problem, glints, mask, x0, enough, lo, hi, max_iter)
+    else:
+        raise ValueError(f"solver must be 'lm' or 'trf', got {solver!r}")
+    reason = np.full(B, OK, dtype=object)
+    reason[~converged] = NOT_CONVERGED
+    reason[~np.isfinite(x).all(axis=1)] = NON_FINITE
+    reason[~enough] = TOO_FEW_GLINTS
+    bad = reason != OK
+    x[bad] = np.nan
+    rms = np.where(bad, np.nan, rms)
+    center, radius, _ = _unpack(model, problem, x)
+    nan3 = np.full((B, 3), np.nan)
+    return CorneaFit(
+        center_m=np.asarray(center, dtype=np.float64).reshape(B, 3),
+        radius_m=np.broadcast_to(np.asarray(radius, dtype=np.float64), (B,)).copy(),
+        angles_rad=x[:, :2].copy() if model == "orbit" else np.full((B, 2), np.nan),
+        light_pose_rotvec=x[:, 4:7].copy() if model == "full" else nan3,
+        light_pose_translation_m=x[:, 7:10].copy() if model == "full" else nan3.copy(),
+        rms_px=rms, glints_used=mask.sum(axis=1), iterations=iters, reason=reason.astype(str))
+
+
+def _lm(model, problem, glints, mask, x0, enough, lo, hi, max_iter):
+    """Batched Levenberg-Marquardt (Marquardt's diagonal scaling), one Jacobian per iteration.
+
+    Each iteration evaluates residuals and Jacobian at the trial points of the samples still
+    running; a trial that lowers the cost is kept (and its Jacobian is the next one), one that
+    does not raises that sample's damping and keeps the old point."""
+    B, p = x0.shape
+    x = np.clip(x0, lo, hi)
+    active = enough.copy()
+    iters = np.zeros(B, dtype=int)
+    converged = np.zeros(B, dtype=bool)
+    cost = np.full(B, np.inf)
+    lam = np.full(B, 1e-3)
+    r = np.zeros((B, glints.shape[1] * 2))
+    J = np.zeros((B, glints.shape[1] * 2, p))
+    idx = np.flatnonzero(active)
+    if idx.size:
+        r[idx], J[idx] = _residuals_and_jacobian(model, problem, x[idx], glints[idx], mask[idx])
+        cost[idx] = np.einsum("bi,bi->b", r[idx], r[idx])
+    for _ in range(max_iter):
+        idx = np.flatnonzero(active & ~converged)
+        if idx.size == 0:
+            break
+        Ji, ri = J[idx], r[idx]
+        JtJ = np.einsum("bmi,bmj->bij", Ji, Ji)
+        g = np.einsum("bmi,bm->bi", Ji, ri)
+        diag = np.einsum("bii->bi", JtJ)
+        A = JtJ + (lam[idx, None] * np.maximum(diag, 1e-30))[..., None] * np.eye(p)
+        step = -np.linalg.solve(A, g[..., None])[..., 0]
+        x_new = np.clip(x[idx] + step, lo, hi)
+        with np.errstate(invalid="ignore", over="ignore"):
+            r_new, J_new = _residuals_and_jacobian(model, problem, x_new, glints[idx], mask[idx])
+        cost_new = np.einsum("bi,bi->b", r_new, r_new)
+        better = np.isfinite(cost_new) & (cost_new <= cost[idx])
+        iters[idx] += 1
+        acc = idx[better]
+        small = (np.abs(x_new - x[idx]) <= _XTOL * np.maximum(1.0, np.abs(x[idx]))).all(axis=1)
+        flat = np.abs(cost[idx] - cost_new) <= _FTOL * np.maximum(cost[idx], 1e-30)
+        x[acc], r[acc], J[acc], cost[acc] = x_new[better], r_new[better], J_new[better], cost_new[better]
+        lam[acc] = np.maximum(lam[acc] / 10, 1e-12)
+        lam[idx[~better]] *= 10
+        # Converged: an accepted step that changed nothing, or a damping so large that no
+        # step lowers the cost any more (a minimum to machine precision).
+        converged[idx[(better & (small | flat | (cost_new == 0))) | (~better & (lam[idx] > 1e12))]] = True
+    rms = np.sqrt(cost / np.maximum(mask.sum(axis=1), 1))
+    return x, rms, iters, converged
+
+
+def _trf(model, problem, glints, mask, x0, enough, lo, hi, max_iter):
+    """The paper's solver: scipy's trust-region-reflective per sample, 2-point Jacobian."""
+    B, p = x0.shape
+    x = x0.copy()
+    rms = np.full(B, np.nan)
+    iters = np.zeros(B, dtype=int)
+    converged = np.zeros(B, dtype=bool)
+    for b in np.flatnonzero(enough):
+        m = mask[b]
+
+        def fun(xb, b=b, m=m):
+            center, radius, lights = _unpack(model, problem, xb[None])
+            g, _ = project_glints(problem.camera, center[0] if np.ndim(center) == 2 else center,
+                                  radius if np.ndim(radius) == 0 else radius[0],
+                                  lights if lights.ndim == 2 else lights[0])
+            return (g[m] - glints[b, m]).ravel()
+
+        x0b = np.clip(x0[b], np.nextafter(lo, hi), np.nextafter(hi, lo))
+        res = least_squares(fun, x0b, bounds=(lo, hi), method="trf", max_nfev=max_iter * (p + 1),
+                            xtol=1e-12, ftol=1e-12, gtol=1e-12)
+        x[b], iters[b], converged[b] = res.x, res.nfev, res.status > 0
+        rms[b] = np.sqrt(2 * res.cost / max(m.sum(), 1))
+    return x, rms, iters, converged
