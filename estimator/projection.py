@@ -85,28 +85,45 @@ def _plane_frame(camera_position_m, cornea_center_m, cornea_radius_m, lights_wor
 
 
 def _newton_root(alpha, beta, phi, theta0):
-    """Bracketed Newton iteration on (R) over [0, φ], from ``theta0``.
-
-    Only sin θ and cos θ are evaluated per step; the other terms of (R) follow from the
-    angle-sum identities with the fixed sin φ and cos φ. Converged pairs drop out, so the few
-    near-grazing pairs that need bisection steps do not slow the whole batch.
-    """
+    """The root of (R) in [0, φ]: two plain Newton steps from ``theta0`` (the first-order closed
+    form is within ~1e-4 rad, so the second step is already below the stopping size), then a
+    bracketed Newton-bisection for the few pairs that did not settle (near-grazing light)."""
     shape = phi.shape
-    alpha, beta, phi = (np.ravel(x) for x in (alpha, beta, phi))
-    theta_out = np.clip(np.ravel(theta0), 0.0, phi)
-    idx = None  # None: all pairs active
-    a, b, p, theta = alpha, beta, phi, theta_out.copy()
-    lo, hi = np.zeros_like(p), p.copy()
+    a, b, p = (np.ravel(x) for x in (alpha, beta, phi))
+    theta = np.clip(np.ravel(theta0), 0.0, p)
     sp, cp = np.sin(p), np.cos(p)
+    ab = a * b
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for _ in range(2):
+            f, df = _reflection_condition(a, b, ab, sp, cp, theta)
+            step = f / df
+            theta = theta - step
+    done = (np.abs(step) < _STEP_STOP_RAD) & (theta >= 0) & (theta <= p)  # NaN -> False
+    if not done.all():
+        i = np.flatnonzero(~done)
+        theta[i] = _bracketed_root(a[i], b[i], p[i], sp[i], cp[i], np.clip(np.ravel(theta0)[i], 0, p[i]))
+    return theta.reshape(shape)
+
+
+def _reflection_condition(a, b, ab, sp, cp, theta):
+    """F(θ) of (R) and F'(θ), from sin θ and cos θ and the angle-sum identities."""
+    st, ct = np.sin(theta), np.cos(theta)
+    s2, c2 = 2 * st * ct, ct * ct - st * st
+    s_pt = sp * ct - cp * st  # sin(φ - θ)
+    c_pt = cp * ct + sp * st  # cos(φ - θ)
+    f = ab * (sp * c2 - cp * s2) + a * st - b * s_pt
+    df = -2 * ab * (cp * c2 + sp * s2) + a * ct + b * c_pt
+    return f, df
+
+
+def _bracketed_root(a, b, p, sp, cp, theta):
+    """Safeguarded Newton on [0, φ]: F(0) > 0 > F(φ) and F decreases through the root; a step
+    that leaves the bracket is replaced by bisection. Converged pairs drop out."""
+    out = theta.copy()
+    idx = np.arange(theta.size)
+    lo, hi = np.zeros_like(p), p.copy()
     for _ in range(_MAX_NEWTON_ITER):
-        ab = a * b
-        st, ct = np.sin(theta), np.cos(theta)
-        s2, c2 = 2 * st * ct, ct * ct - st * st
-        s_pt = sp * ct - cp * st  # sin(φ - θ)
-        c_pt = cp * ct + sp * st  # cos(φ - θ)
-        f = ab * (sp * c2 - cp * s2) + a * st - b * s_pt
-        df = -2 * ab * (cp * c2 + sp * s2) + a * ct + b * c_pt
-        # F decreases through the root: shrink the bracket on the side F says.
+        f, df = _reflection_condition(a, b, a * b, sp, cp, theta)
         pos = f > 0
         np.copyto(lo, theta, where=pos)
         np.copyto(hi, theta, where=~pos)
@@ -115,21 +132,14 @@ def _newton_root(alpha, beta, phi, theta0):
         new = theta - step
         bad = ~((new >= lo) & (new <= hi))  # also catches NaN from df == 0
         np.copyto(new, 0.5 * (lo + hi), where=bad)
+        out[idx] = new
         active = bad | (np.abs(step) >= _STEP_STOP_RAD)
-        if idx is None:
-            theta_out[:] = new
-        else:
-            theta_out[idx] = new
         if not active.any():
             break
-        if idx is None:
-            idx = np.flatnonzero(active)
-        else:
-            idx = idx[active]
-        keep = active.nonzero()[0] if active.size != idx.size else slice(None)
-        a, b, p, sp, cp = a[keep], b[keep], p[keep], sp[keep], cp[keep]
-        lo, hi, theta = lo[keep], hi[keep], new[keep]
-    return theta_out.reshape(shape)
+        idx = idx[active]
+        a, b, p, sp, cp = a[active], b[active], p[active], sp[active], cp[active]
+        lo, hi, theta = lo[active], hi[active], new[active]
+    return out
 
 
 def reflection_quartic(alpha, beta, phi) -> np.ndarray:
@@ -363,7 +373,8 @@ def reflect_pixel_rays(camera: Camera, cornea_center, cornea_radius, pixels_px):
 
 
 def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, *,
-                    cornea_axis=None, cap_cos_min: float | None = None):
+                    cornea_axis=None, cap_cos_min: float | None = None,
+                    radius_and_lights: bool = True):
     """Glints and their derivatives with respect to the cornea centre, the corneal radius and
     the light positions, in closed form.
 
@@ -379,7 +390,8 @@ def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, 
         dP/dL = (r / d_w) [ t w'ᵀ / g + k kᵀ / (2 cos i + r H) ]
 
     followed by the pinhole Jacobian. About five times cheaper than general 3x3 algebra, and
-    checked against finite differences in the tests.
+    checked against finite differences in the tests. With ``radius_and_lights=False`` only
+    d_center is computed (the other two are None), which is what a centre fit needs.
 
     Returns
     -------
@@ -415,22 +427,24 @@ def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, 
     t = np.stack([st * x - ct * y for x, y in zip(e1, e2)], axis=-1)
     k = np.stack([e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
                   e1[0] * e2[1] - e1[1] * e2[0]], axis=-1)
-    # Pinhole Jacobian applied to the frame vectors: 2-vectors J_pi v.
-    pc = (points - camera.position_m) @ camera.rotation.T
+    # Pinhole Jacobian J_pi (2x3 per glint): rows f (R_x - (X/Z) R_z) / Z and f (R_y - (Y/Z) R_z) / Z.
+    R = camera.rotation
+    pc = (points - camera.position_m) @ R.T
     with np.errstate(divide="ignore", invalid="ignore"):
         iz = 1 / pc[..., 2]
     xz, yz = pc[..., 0] * iz, pc[..., 1] * iz
-
-    def jpi(v):
-        vc = v @ camera.rotation.T
-        return np.stack([camera.fx_px * iz * (vc[..., 0] - xz * vc[..., 2]),
-                         camera.fy_px * iz * (vc[..., 1] - yz * vc[..., 2])], axis=-1)
-
-    Pn, Pt, Pk = jpi(n), jpi(t), jpi(k)
+    fxz, fyz = camera.fx_px * iz, camera.fy_px * iz
+    Jpi = np.stack([np.stack([fxz * (R[0, j] - xz * R[2, j]) for j in range(3)], -1),
+                    np.stack([fyz * (R[1, j] - yz * R[2, j]) for j in range(3)], -1)], -2)
+    Pt = (Jpi @ t[..., None])[..., 0]
+    Pk = (Jpi @ k[..., None])[..., 0]
     outer = lambda p, v: p[..., :, None] * v[..., None, :]  # noqa: E731
-    d_center = (outer(Pn - b_tn[..., None] * Pt, n) + outer(a_t[..., None] * Pt, t)
-                + outer(a_k[..., None] * Pk, k))
-    d_radius = Pn - b_tn[..., None] * Pt
+    # dP/dc = I - t ((1 - a_t) t + b n)ᵀ - (1 - a_k) k kᵀ, since n nᵀ + t tᵀ + k kᵀ = I.
+    d_center = Jpi - outer(Pt, (1 - a_t)[..., None] * t + b_tn[..., None] * n) \
+        - outer((1 - a_k)[..., None] * Pk, k)
+    if not radius_and_lights:
+        return glints, visible, d_center, None, None
+    d_radius = np.einsum("...ij,...j->...i", Jpi, n) - b_tn[..., None] * Pt
     w_perp = sin_i[..., None] * n + cos_i[..., None] * t
     d_light = outer(l_t[..., None] * Pt, w_perp) + outer(l_k[..., None] * Pk, k)
     return glints, visible, d_center, d_radius, d_light
