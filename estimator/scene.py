@@ -37,6 +37,11 @@ UNITS = {
 
 # Sanity ranges in SI units: values outside are almost always a unit mistake.
 _EYE_CLEARANCE_M = 0.5e-3
+#: No number in a scene may exceed this in magnitude: squares of larger values (vector
+#: lengths) overflow, and nothing in an eye-tracking scene is within orders of magnitude of it.
+_MAX_ABS = 1e100
+#: Positions must lie within this distance of the origin (m): an eye tracker fits on a desk.
+_MAX_POSITION_M = 100.0
 
 
 class _Table:
@@ -95,9 +100,12 @@ class _Table:
     def _check_number(self, name, value, lo=None, hi=None, unit_note="") -> float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise self.error(name, f"expected a number, got {value!r}")
-        value = float(value)
-        if not math.isfinite(value):
-            raise self.error(name, f"expected a finite number, got {value}")
+        try:
+            value = float(value)
+        except OverflowError:
+            raise self.error(name, "expected a finite number, got an integer too large for a float") from None
+        if not math.isfinite(value) or abs(value) > _MAX_ABS:
+            raise self.error(name, f"expected a finite number of magnitude below {_MAX_ABS:g}, got {value}")
         if (lo is not None and value < lo) or (hi is not None and value > hi):
             raise self.error(name, f"expected a value in [{lo}, {hi}]{unit_note}, got {value}")
         return value
@@ -135,7 +143,11 @@ class _Table:
             return self._ranged(key, value, factor, lo, hi, note)
         if not isinstance(value, (list, tuple)) or len(value) != shape:
             raise self.error(key, f"expected an array of {shape} numbers, got {value!r}")
-        return np.array([self._check_number(key, v) for v in value]) * factor
+        si = np.array([self._check_number(key, v) for v in value]) * factor
+        if kind == "length" and np.abs(si).max() > _MAX_POSITION_M:
+            raise self.error(key, f"expected coordinates within {_MAX_POSITION_M:g} m of the eye, got "
+                                  f"{si.tolist()} m; check the unit in the key name")
+        return si
 
     def _ranged(self, key, value, factor, lo, hi, note):
         si = self._check_number(key, value) * factor
@@ -187,6 +199,10 @@ def load_scene(name_or_path: str | Path | None = None) -> Setup:
 
 def parse_scene(text: str, source: str = "<string>") -> Setup:
     """Parse scene TOML text into a :class:`Setup` (``source`` names it in errors)."""
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError as exc:
+        raise SceneError(f"not valid Unicode text ({exc.reason} at character {exc.start})", path=source) from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -264,7 +280,10 @@ def _read_camera(t: _Table, eye: Eye) -> Camera:
     except ValueError as exc:
         raise t.error(ways[0], str(exc)) from None
     t.finish()
-    return Camera(position, R, fx, fy, pp[0], pp[1], width, height)
+    try:
+        return Camera(position, R, fx, fy, pp[0], pp[1], width, height)
+    except ValueError as exc:
+        raise t.error(ways[0], str(exc)) from None
 
 
 def _read_sensor(t: _Table, camera: Camera) -> Sensor:
@@ -410,7 +429,9 @@ def _check_geometry(setup: Setup, top: _Table) -> None:
     d_l = np.linalg.norm(lights - eye.rotation_center_m, axis=1)
     if np.any(d_l <= reach):
         i = int(np.argmin(d_l))
-        raise top.error("lights", f"light {i} lies {d_l[i] * 1e3:.2f} mm from the eye's rotation "
+        g = int(setup.lights.group_index[i])
+        first = sum(grp.count for grp in setup.lights.groups[:g])
+        raise top.error(f"lights[{g}]", f"light {i - first} of this group (light {i} overall) lies {d_l[i] * 1e3:.2f} mm from the eye's rotation "
                                   f"centre, inside the eye (needs > {reach * 1e3:.2f} mm)")
     if not np.all(np.isfinite(lights)):
         raise top.error("lights", "light positions are not finite")
@@ -422,3 +443,11 @@ def _check_geometry(setup: Setup, top: _Table) -> None:
                                   f"{cam.width_px}x{cam.height_px} image or behind the camera")
     if not np.all(np.isfinite(center_px)):
         raise top.error("camera", "the camera cannot see the cornea (cornea centre behind it)")
+    # The camera must face the front of the cornea: the apex at primary gaze must be on the
+    # camera's side of the corneal sphere (a camera behind or beside the eye sees no glints).
+    axis = eye.apex() - eye.cornea_center(0.0, 0.0)
+    axis /= np.linalg.norm(axis)
+    if (cam.position_m - eye.cornea_center(0.0, 0.0)) @ axis <= eye.cornea_radius_m:
+        raise top.error("camera.position_m", "the camera cannot see the cornea: it must sit in front of "
+                                             "the corneal apex (the eye looks along -z), got "
+                                             f"{np.round(cam.position_m, 4).tolist()} m")
