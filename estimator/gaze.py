@@ -1,0 +1,208 @@
+"""Gaze from glints: geometric (Sec. 2.2.1) and polynomial (Sec. 2.2.2) estimation.
+
+Geometric: fit the cornea centre on its orbit (Fick angles about the calibrated eye centre c_e,
+radius r_co) to the sample's glints, then intersect the optical axis, the ray from c_e through
+the cornea centre, with the screen plane. Polynomial: fit the cornea centre alone (known r_c and
+lighting) and map it to the screen with a calibrated :class:`~estimator.calibration.GazeMapping`.
+
+Both are batched: a batch of samples is fitted at once by :func:`estimator.cornea.fit_cornea`
+(``solver="lm"``, ours) from a shared start, or one sample after another from the previous
+sample's estimate (``chain=True``: the paper's warm start, Sec. 2.2.1; with ``solver="trf"``
+this is the paper's reference). A stream passes :attr:`GazeEstimates.resume_from` of one
+batch as the ``start`` of the next. A sample that cannot be estimated is NaN with a reason
+code (:data:`REASONS`); the batch always completes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .calibration import Calibration, GazeMapping
+from .cornea import NON_FINITE, NOT_CONVERGED, OK, TOO_FEW_GLINTS, CorneaFit, FitProblem, fit_cornea
+from .eye import gaze_direction
+
+#: The optical axis does not reach the screen plane (it points away from it).
+MISSES_SCREEN = "misses_screen"
+REASONS = (OK, TOO_FEW_GLINTS, NOT_CONVERGED, NON_FINITE, MISSES_SCREEN)
+#: Bounds on the orbit fit's Fick angles (rad). The human oculomotor range is about +/-50 deg;
+#: the bound only keeps the solver on the front half of the orbit, where the optical axis can
+#: reach the screen (TRF needs finite bounds to be the paper's bounded solver).
+ANGLE_BOUND_RAD = np.deg2rad(80.0)
+
+
+@dataclass(frozen=True, slots=True)
+class GazeEstimates:
+    """Gaze of B samples.
+
+    Attributes
+    ----------
+    point_m : (B, 3) float
+        Estimated gaze point on the screen plane (NaN where the sample failed).
+    cornea_center_m : (B, 3) float
+        Fitted cornea centre.
+    angles_rad : (B, 2) float
+        Fick (yaw, pitch) about c_e (geometric gaze only; NaN for polynomial gaze).
+    rms_px : (B,) float
+        RMS glint residual of the cornea fit.
+    reason : (B,) str
+        One of :data:`REASONS`.
+    method : str
+    """
+
+    point_m: np.ndarray
+    cornea_center_m: np.ndarray
+    angles_rad: np.ndarray
+    rms_px: np.ndarray
+    reason: np.ndarray
+    method: str
+
+    @property
+    def ok(self) -> np.ndarray:
+        return self.reason == OK
+
+    @property
+    def screen_xy_m(self) -> np.ndarray:
+        """(B, 2) screen coordinates."""
+        return self.point_m[:, :2]
+
+    @property
+    def resume_from(self):
+        """Start for the next batch of a stream: the last successful fit's parameters (Fick
+        angles for geometric gaze, cornea centre for polynomial gaze), or None."""
+        idx = np.flatnonzero(self.ok)
+        if idx.size == 0:
+            return None
+        return (self.angles_rad if self.method == "geometric" else self.cornea_center_m)[idx[-1]].copy()
+
+
+def _fit(problem, glints_px, mask, start, model, solver, chain, lower, upper, max_iter):
+    """fit_cornea over a batch, from a shared start or chained sample to sample."""
+    glints = np.asarray(glints_px, dtype=np.float64)
+    if glints.ndim == 2:
+        glints = glints[None]
+    if mask is None:
+        mask = np.isfinite(glints).all(axis=-1)
+    mask = np.asarray(mask, dtype=bool).reshape(glints.shape[:2])
+    if not chain:
+        return fit_cornea(problem, glints, mask, start, model=model, solver=solver, lower=lower,
+                          upper=upper, max_iter=max_iter)
+    x = np.asarray(start, dtype=np.float64)
+    fits = []
+    for b in range(glints.shape[0]):
+        f = fit_cornea(problem, glints[b:b + 1], mask[b:b + 1], x, model=model, solver=solver,
+                       lower=lower, upper=upper, max_iter=max_iter)
+        fits.append(f)
+        if f.ok[0]:
+            x = f.angles_rad[0] if model == "orbit" else f.center_m[0]
+    return CorneaFit(*(np.concatenate([getattr(f, name) for f in fits]) for name in CorneaFit.__slots__))
+
+
+def screen_intersection(eye_center_m, directions, screen_z_m: float):
+    """Points where rays from ``eye_center_m`` along (B, 3) ``directions`` meet the plane
+    z = ``screen_z_m``; NaN (and False) where a ray points away from it."""
+    c = np.asarray(eye_center_m, dtype=np.float64).reshape(3)
+    d = np.asarray(directions, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam = (screen_z_m - c[2]) / d[:, 2]
+    hits = np.isfinite(lam) & (lam > 0)
+    lam = np.where(hits, lam, np.nan)
+    return c + lam[:, None] * d, hits
+
+
+def _estimates(fit, points, hits, method, angles, miss_reason=MISSES_SCREEN):
+    """Gaze estimates from a cornea fit; fitted samples whose point is not ``hits`` fail with
+    ``miss_reason``."""
+    reason = fit.reason.astype(object)
+    reason[(reason == OK) & ~hits] = miss_reason
+    bad = reason != OK
+    points = np.where(bad[:, None], np.nan, points)
+    return GazeEstimates(points, fit.center_m, angles, fit.rms_px, reason.astype(str), method)
+
+
+def geometric_gaze(setup, calibration: Calibration, glints_px, mask=None, *, start=(0.0, 0.0),
+                   chain: bool = False, solver: str = "lm", max_iter: int = 50) -> GazeEstimates:
+    """Geometric gaze estimation (Sec. 2.2.1): cornea on its orbit, optical axis to the screen.
+
+    Parameters
+    ----------
+    setup : Setup
+        Camera, nominal lights and screen.
+    calibration : Calibration
+        Lighting correction, r_c, c_e and r_co.
+    glints_px : (B, n, 2) float
+        Detected glints (NaN = missing), lights in the setup's order.
+    mask : (B, n) bool, optional
+    start : (2,) float
+        Fick (yaw, pitch) to start from: the primary position (0, 0) for the first sample, as in
+        the paper; the previous batch's :attr:`GazeEstimates.resume_from` in a stream.
+    chain : bool
+        Start each sample from the previous sample's estimate (the paper's warm start) instead of
+        fitting the batch at once from ``start``.
+    solver : {"lm", "trf"}
+    """
+    if not calibration.has_orbit:
+        raise ValueError("geometric gaze needs a calibration with the eye centre and orbit radius")
+    problem = FitProblem(setup.camera, calibration.lights_world_m(setup.lights_world_m),
+                         calibration.cornea_radius_m, calibration.eye_center_m, calibration.orbit_radius_m)
+    lim = np.full(2, ANGLE_BOUND_RAD)
+    fit = _fit(problem, glints_px, mask, start, "orbit", solver, chain, -lim, lim, max_iter)
+    points, hits = screen_intersection(calibration.eye_center_m,
+                                       gaze_direction(fit.angles_rad[:, 0], fit.angles_rad[:, 1]),
+                                       setup.screen.z_m)
+    return _estimates(fit, points, hits, "geometric", fit.angles_rad)
+
+
+def fit_cornea_centers(setup, calibration: Calibration, glints_px, mask=None, *, start=None,
+                       chain: bool = False, solver: str = "lm", max_iter: int = 50) -> CorneaFit:
+    """Cornea centres (the ``"center"`` model: known r_c and calibrated lighting) of a batch of
+    samples: the features of polynomial gaze, for calibrating a mapping and for using it.
+
+    ``start`` is the initial centre, by default the nominal eye's at primary position (the
+    paper's, Sec. 2.2.1); ``chain`` and ``solver`` as in :func:`geometric_gaze`.
+    """
+    problem = FitProblem(setup.camera, calibration.lights_world_m(setup.lights_world_m),
+                         calibration.cornea_radius_m)
+    x0 = setup.eye.cornea_center(0.0, 0.0) if start is None else start
+    return _fit(problem, glints_px, mask, x0, "center", solver, chain, None, None, max_iter)
+
+
+def polynomial_gaze(setup, calibration: Calibration, glints_px, mask=None, *, mapping="eq1_25",
+                    distance=None, start=None, chain: bool = False, solver: str = "lm",
+                    max_iter: int = 50) -> GazeEstimates:
+    """Polynomial gaze estimation (Sec. 2.2.2): cornea centre, then a calibrated mapping.
+
+    Parameters
+    ----------
+    setup, calibration, glints_px, mask, chain, solver
+        As :func:`geometric_gaze` (only the lighting correction and r_c of the calibration are
+        used, besides the mapping).
+    mapping : str or GazeMapping
+        A mapping, or the name of one in ``calibration.mappings``.
+    distance : (B,) float, optional
+        Distance-sensor readings d_a, required by ``quadratic_da`` mappings (Sec. 3.3.1).
+    start : (3,) float, optional
+        Initial cornea centre; default the nominal eye's at primary position (the paper's).
+    """
+    if isinstance(mapping, str):
+        if mapping not in calibration.mappings:
+            raise ValueError(f"no gaze mapping {mapping!r} in the calibration "
+                             f"(has {sorted(calibration.mappings)})")
+        mapping = calibration.mappings[mapping]
+    if not isinstance(mapping, GazeMapping):
+        raise ValueError(f"mapping must be a GazeMapping or its name, got {type(mapping).__name__}")
+    fit = fit_cornea_centers(setup, calibration, glints_px, mask, start=start, chain=chain, solver=solver,
+                             max_iter=max_iter)
+    features = fit.center_m
+    if mapping.n_features == 4:
+        if distance is None:
+            raise ValueError(f"the {mapping.kind!r} mapping needs the distance readings d_a")
+        d = np.asarray(distance, dtype=np.float64).reshape(-1)
+        if d.shape != (features.shape[0],):
+            raise ValueError(f"distance must have shape ({features.shape[0]},), got {d.shape}")
+        features = np.column_stack([features, d])
+    xy = mapping.predict(features)
+    points = np.column_stack([xy, np.full(len(xy), setup.screen.z_m)])
+    return _estimates(fit, points, np.isfinite(xy).all(axis=1), "polynomial", np.full((len(xy), 2), np.nan),
+                      miss_reason=NON_FINITE)
