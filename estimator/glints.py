@@ -1,0 +1,609 @@
+"""Glint detection in a banded rolling-shutter frame, with OpenCV.
+
+A glint is the corneal reflection of one strobed point light: a small bright spot (1-4 px in
+radius at 640x480) on an eye image whose sclera, iris, skin and eyelids sit at low to moderate
+levels. Each strobe pulse lights only a band of rows (Sec. 2.3 of the SCET paper, Fig. 2), so
+every glint also carries the instant of the pulse that lit it. The pipeline is lean (it runs on
+a Raspberry Pi, one frame per 16.6 ms):
+
+1. Background: a morphological white top-hat, the image minus its opening by a horizontal line
+   of ``background_kernel_px`` pixels. The opening erases every bright structure narrower than
+   the line (glints) and keeps everything wider: skin, sclera, iris, pupil and lid edges, linear
+   gradients exactly, and the band structure. A horizontal line rather than a square because
+   the bands are constant along rows: the V-shaped dips at band edges (Eq. (5)) cut the sclera
+   and skin into bright horizontal ridges a few rows high wherever a dip runs near a lid or
+   iris edge; a square does not fit in them and would leave them in the top-hat, a line does.
+2. Threshold: the top-hat floor (its median) plus ``threshold_sigma`` robust standard deviations
+   (1.4826 MAD), both from a 1-in-16 pixel subsample: the glints are too sparse to move them.
+3. Connected components (one ``cv2.connectedComponentsWithStats``, 8-connected) on the bounding
+   rectangle of the pixels above threshold.
+4. Per component, in one vectorised pass over the pixels of the component boxes grown by
+   ``centroid_margin_px`` (``np.bincount`` on the component index): the intensity-weighted
+   centroid of the top-hat above its floor (pixel-centre convention: (0, 0) is the centre of the
+   top-left pixel), with each row divided by the light it collected from the strobes,
+   Σ_j w_j(y) of :func:`estimator.banding.row_pulse_weights`, clamped below at
+   ``band_weight_floor``. A static glint is recorded as I(x, y) Σ_j w_j(y), so the division
+   undoes the cut a band edge makes in the spot (uncorrected, a spot on the ramp of Eq. (5)
+   moves toward the band's plateau by up to half a pixel).
+5. Filters (a failing component is not a glint and is not returned): area, elongation of the
+   intensity-weighted second moments, and the ratio of the brightest 4-neighbour to the peak
+   (an optical spot is never a single pixel; a noise spike or hot pixel is). Elongated
+   components with two or three clearly separated maxima (neighbouring glints whose skirts
+   touch, common where the arc's glints crowd) are first split among their maxima and flagged
+   :data:`BLENDED`. Thresholds and their reasons are in :class:`DetectionParams`.
+6. Band and time: the light of a spot is shared among the pulses in proportion to
+   Σ_pixels I(x, y) w_j(y); the largest share names the strobe, and the time stamp is that
+   pulse's centre s_j + Δs / 2 (as in :func:`estimator.banding.row_strobe`).
+
+Flags (bits of :attr:`GlintDetections.flags`): :data:`SATURATED` (a pixel of the spot reached
+full scale: the centroid is that of the flat top and its skirt, the intensity a lower bound),
+:data:`CUT_BY_BAND_EDGE` (the spot reaches a row where its pulse's weight falls below the
+plateau: the centroid was corrected as above and is less certain), :data:`TWO_PULSES` (a second
+pulse contributes a share of the spot's light: the spot may hold two images of the same glint,
+Δ_clk apart; they are not split, the strobe and time are those of the larger share),
+:data:`IMAGE_EDGE` (the spot's box touches the image border: the centroid may be truncated),
+:data:`NO_BAND` (the spot lies on rows no pulse lights: not a strobe glint; strobe index
+:data:`estimator.banding.NO_PULSE`, time NaN) and :data:`BLENDED` (split from a neighbour: the
+centroid is pulled toward it by up to ~0.1 px). Flagged glints are kept: what to do with them
+is the caller's decision.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from .banding import NO_PULSE, row_pulse_weights
+from .setup import Sensor, Setup, Strobe
+
+#: Flag bits of :attr:`GlintDetections.flags`.
+SATURATED = 1
+CUT_BY_BAND_EDGE = 2
+TWO_PULSES = 4
+IMAGE_EDGE = 8
+NO_BAND = 16
+BLENDED = 32
+FLAG_NAMES = {SATURATED: "saturated", CUT_BY_BAND_EDGE: "cut_by_band_edge",
+              TWO_PULSES: "two_pulses", IMAGE_EDGE: "image_edge", NO_BAND: "no_band",
+              BLENDED: "blended"}
+
+#: The frame-local strobe phase is rounded to this (s) to key the cache of per-row pulse
+#: weights: a strobe locked to the frame (P Δ_clk = Δt) then finds the same entry every frame
+#: despite the float rounding of s_j - t0_f. 1e-10 s changes a weight by 1e-6 of a 100 µs pulse.
+_PHASE_QUANTUM_S = 1e-10
+
+
+@dataclass(frozen=True, slots=True)
+class DetectionParams:
+    """Thresholds of :func:`detect_glints`, each with the reason for its default.
+
+    Attributes
+    ----------
+    background_kernel_px : int
+        Length of the horizontal line of the top-hat's opening (odd). Glints are at most 4 px
+        in radius (9 px across); 11 px leaves a pixel of skirt on each side. Longer lets wider
+        bright clutter through to the shape filters; shorter than a glint erodes its top.
+    threshold_sigma : float
+        Detection threshold above the top-hat floor, in robust noise standard deviations. The
+        top-hat of noise has a heavier upper tail than a Gaussian (a pixel minus a local max
+        of minima); at 7, 200 frames of shot and read noise on an eye-like background gave no
+        false component (6 gave a few per hundred frames before the shape filters).
+    min_noise_dn : float
+        Floor of the noise estimate (DN): a noiseless or coarsely quantised frame (MAD 0) would
+        otherwise turn every quantisation step into a detection. 0.5 DN is the SD of a uniform
+        quantisation error (0.29 DN) rounded up.
+    min_area_px, max_area_px : int
+        Pixels above threshold. A glint of radius 1-4 px covers ~1-50 px; a saturated one
+        blooms further (σ = 2 px at 50x the threshold: radius 5.6 px, ~100 px), hence 150.
+        Larger components are not glints (pupil-edge and tear-film highlights).
+    max_elongation : float
+        sqrt(λ_max / λ_min) of the intensity-weighted second moments of a component (after the
+        band correction). A round glint gives 1, a Gaussian cut in half by an uncorrected band
+        edge or the image border 1.7. Reflections off the sclera and the lid margin are
+        streaks, 3 and more.
+    max_blend : int
+        An elongated component with 2..max_blend separated maxima is split among them; more
+        maxima are a textured streak, not neighbouring glints.
+    blend_saddle : float
+        Two maxima are separate glints when the profile between them dips below this fraction
+        of the lower one. Two glints of σ = 1.5 px 5.7 px apart (the closest pair of
+        ``paper_sim``) dip to 0.33; the noise ripple on a streak (σ / peak ~ 0.05) does not
+        reach 0.6.
+    min_neighbour_ratio : float
+        Brightest 4-neighbour of the peak pixel over the peak (above the floor). A Gaussian
+        spot of σ >= 0.5 px (the sharpest a lens gives at VGA) centred on a pixel gives 0.23,
+        more off centre; a noise spike or hot pixel only its neighbours' noise over its height.
+        Saturated spots pass.
+    centroid_margin_px : int
+        Growth of each component's box for the centroid (px): the skirt below threshold holds
+        a spot's tails (leaving them out pulls the centroid toward the peak pixel); wider
+        margins add noise faster than signal (measured: 2 px doubles the centroid's spread).
+        Pixels of other components are excluded.
+    centroid_floor_sigma : float
+        Pixels weigh their value above the floor minus this many noise SDs, clipped at zero:
+        the skirt's zero-mean noise then adds little variance, at a bias below 0.02 px
+        (measured: median error 0.043 px against 0.052 px without it).
+    band_weight_floor : float
+        Rows are divided by max(Σ_j w_j(y), floor). Rows lit by less than a quarter of a pulse
+        hold little of the spot, and dividing them by less would amplify their noise more
+        than 4x.
+    cut_tolerance : float
+        A spot is :data:`CUT_BY_BAND_EDGE` when its pulse's weight on any of its rows (±1)
+        falls below (1 - tolerance) of that pulse's largest weight in the frame.
+    two_pulse_share : float
+        A spot is :data:`TWO_PULSES` when the second pulse carries at least this share of its
+        light: 5 % moves the centroid of a glint that moved 1 px between the pulses by 0.05 px.
+    saturation_dn : float, optional
+        Full scale. Default: 255 for uint8 frames, 2**bit_depth - 1 of the sensor otherwise.
+    """
+
+    background_kernel_px: int = 11
+    threshold_sigma: float = 7.0
+    min_noise_dn: float = 0.5
+    min_area_px: int = 1
+    max_area_px: int = 150
+    max_elongation: float = 2.0
+    max_blend: int = 3
+    blend_saddle: float = 0.6
+    min_neighbour_ratio: float = 0.12
+    centroid_margin_px: int = 1
+    centroid_floor_sigma: float = 1.0
+    band_weight_floor: float = 0.25
+    cut_tolerance: float = 0.02
+    two_pulse_share: float = 0.05
+    saturation_dn: float | None = None
+
+    def __post_init__(self):
+        k = self.background_kernel_px
+        if not isinstance(k, (int, np.integer)) or k < 3 or k % 2 == 0:
+            raise ValueError(f"background_kernel_px must be an odd integer >= 3, got {k!r}")
+        if not (self.threshold_sigma > 0 and self.min_noise_dn > 0):
+            raise ValueError("threshold_sigma and min_noise_dn must be positive")
+        if not 1 <= self.min_area_px <= self.max_area_px:
+            raise ValueError("need 1 <= min_area_px <= max_area_px")
+        if not self.max_elongation >= 1:
+            raise ValueError(f"max_elongation must be >= 1, got {self.max_elongation!r}")
+        if not 0 < self.band_weight_floor <= 1:
+            raise ValueError(f"band_weight_floor must be in (0, 1], got {self.band_weight_floor!r}")
+        if self.centroid_margin_px < 0 or self.centroid_floor_sigma < 0:
+            raise ValueError("centroid_margin_px and centroid_floor_sigma must be >= 0")
+
+
+@dataclass(frozen=True, slots=True)
+class GlintDetections:
+    """The glints found in one frame (n of them), ordered by row.
+
+    Attributes
+    ----------
+    u_px, v_px : (n,) float
+        Intensity-weighted, band-corrected centroid (pixel-centre convention).
+    intensity : (n,) float
+        Flux of the spot above the background (DN summed over its pixels), divided by the
+        light its rows collected: the flux a full pulse would have given.
+    area_px : (n,) int
+        Pixels above threshold.
+    peak : (n,) float
+        Brightest pixel of the spot above the black level (DN): its distance to full scale
+        minus black is the headroom an exposure control needs.
+    strobe_index : (n,) int64
+        Global index j of the pulse that lit the glint (:data:`estimator.banding.NO_PULSE`
+        for :data:`NO_BAND`).
+    time_s : (n,) float
+        That pulse's centre s_j + Δs / 2 (NaN for :data:`NO_BAND`).
+    flags : (n,) int64
+        OR of :data:`SATURATED`, :data:`CUT_BY_BAND_EDGE`, :data:`TWO_PULSES`,
+        :data:`IMAGE_EDGE`, :data:`NO_BAND`, :data:`BLENDED`.
+    frame_index : int
+    noise_dn : float
+        Robust noise SD of the top-hat image.
+    threshold_dn : float
+        Detection threshold on the top-hat image.
+    """
+
+    u_px: np.ndarray
+    v_px: np.ndarray
+    intensity: np.ndarray
+    area_px: np.ndarray
+    peak: np.ndarray
+    strobe_index: np.ndarray
+    time_s: np.ndarray
+    flags: np.ndarray
+    frame_index: int = 0
+    noise_dn: float = float("nan")
+    threshold_dn: float = float("nan")
+
+    def __len__(self) -> int:
+        return int(self.u_px.shape[0])
+
+    @property
+    def glints_px(self) -> np.ndarray:
+        """(n, 2) centroids (u, v)."""
+        return np.stack([self.u_px, self.v_px], axis=-1)
+
+    def has(self, flag: int) -> np.ndarray:
+        """(n,) bool: which glints carry ``flag``."""
+        return (self.flags & flag) != 0
+
+    def select(self, keep) -> "GlintDetections":
+        """The detections at ``keep`` (bool mask or indices)."""
+        return replace(self, **{name: getattr(self, name)[keep] for name in _ARRAY_FIELDS})
+
+    def of_strobe(self, strobe_index: int) -> "GlintDetections":
+        """The detections lit by one pulse: one band, one gaze sample."""
+        return self.select(self.strobe_index == strobe_index)
+
+
+_ARRAY_FIELDS = ("u_px", "v_px", "intensity", "area_px", "peak", "strobe_index", "time_s", "flags")
+
+
+def _empty(frame_index: int, noise: float, thr: float) -> GlintDetections:
+    f = np.zeros(0)
+    i = np.zeros(0, dtype=np.int64)
+    return GlintDetections(f, f.copy(), f.copy(), i, f.copy(), i.copy(), f.copy(), i.copy(),
+                           frame_index, noise, thr)
+
+
+# --------------------------------------------------------------------------- band timing
+
+
+@dataclass(frozen=True, slots=True)
+class _RowTable:
+    """Per-row pulse weights of one frame-local strobe phase (read-only arrays)."""
+
+    local_index: np.ndarray  # (P,) pulse indices relative to the cached phase
+    weights: np.ndarray  # (N + 2, P): rows -1..N, zero-padded so that rows ±1 can be looked up
+    total: np.ndarray  # (N + 2,) Σ_j w_j(y)
+    dominant: np.ndarray  # (N + 2,) column of the largest weight (-1 for a dark row)
+    plateau: np.ndarray  # (P,) the largest weight of each pulse over the frame
+
+
+@lru_cache(maxsize=64)
+def _row_table(sensor: Sensor, strobe: Strobe) -> _RowTable:
+    j, _, w = row_pulse_weights(sensor, strobe, 0)
+    n, p = w.shape
+    padded = np.zeros((n + 2, max(p, 1)))
+    padded[1:-1, :p] = w
+    total = padded.sum(axis=1)
+    dominant = np.where(total > 0, np.argmax(padded, axis=1), -1)
+    plateau = padded.max(axis=0)
+    for a in (padded, total, dominant, plateau, j):
+        a.setflags(write=False)
+    return _RowTable(j, padded, total, dominant, plateau)
+
+
+def _frame_timing(sensor: Sensor, strobe: Strobe, frame_index: int) -> tuple[_RowTable, int]:
+    """(row table, m): column c of the table is the global pulse ``local_index[c] - m``.
+
+    Frame f sees pulse j start at s_j - t0_f = (phase - f Δt) + j Δ_clk. Writing
+    phase - f Δt = δ + m Δ_clk with δ in [0, Δ_clk), frame f looks like frame 0 of a strobe of
+    phase δ whose pulse j' is the global pulse j' - m; tables are cached per δ, so a strobe
+    locked to the frame computes one table for a whole sequence.
+    """
+    period = strobe.period_s
+    local = strobe.phase_s - frame_index * sensor.frame_period_s
+    m = math.floor(local / period)
+    delta = round((local - m * period) / _PHASE_QUANTUM_S) * _PHASE_QUANTUM_S
+    if delta >= period:
+        delta, m = delta - period, m + 1
+    return _row_table(sensor, replace(strobe, phase_s=delta)), m
+
+
+# --------------------------------------------------------------------------- input checks
+
+
+def _check_frame(frame, setup: Setup) -> np.ndarray:
+    a = np.asarray(frame)
+    if a.size == 0:
+        raise ValueError(f"frame is empty (shape {a.shape})")
+    want = (setup.camera.height_px, setup.camera.width_px)
+    if a.ndim != 2 or a.shape != want:
+        raise ValueError(f"frame must have shape {want} (height, width of setup {setup.name!r}'s "
+                         f"camera), got {a.shape}")
+    if a.dtype == np.bool_ or not np.issubdtype(a.dtype, np.number) or np.iscomplexobj(a):
+        raise ValueError(f"frame must be uint8, uint16 or float sensor DN, got dtype {a.dtype}")
+    if a.dtype in (np.uint8, np.uint16):
+        return np.ascontiguousarray(a)
+    if np.issubdtype(a.dtype, np.floating) and not np.isfinite(a).all():
+        raise ValueError("frame contains NaN or infinite values")
+    return np.ascontiguousarray(a, dtype=np.float32)
+
+
+# --------------------------------------------------------------------------- detection
+
+
+def detect_glints(frame, setup: Setup, frame_index: int = 0,
+                  params: DetectionParams = DetectionParams()) -> GlintDetections:
+    """Find the glints in one banded frame and time-stamp each with its strobe.
+
+    Parameters
+    ----------
+    frame : (H, W) uint8, uint16 or float
+        Sensor output in DN (black level included), H x W the setup camera's size. uint8 is
+        taken as 8-bit output (full scale 255, black level scaled by 2^(8 - bit depth)).
+    setup : Setup
+        Sensor and strobe timing (the bands), bit depth and black level.
+    frame_index : int
+        Frame f of the sequence; its row 0 is read at f Δt (Eq. (2)).
+    params : DetectionParams
+
+    Returns
+    -------
+    GlintDetections
+        Empty arrays when the frame holds no glint.
+
+    Raises
+    ------
+    ValueError
+        Empty frame, wrong shape or dtype, NaN or infinite values, non-integer frame index.
+    """
+    if isinstance(frame_index, bool) or not isinstance(frame_index, (int, np.integer)):
+        raise ValueError(f"frame_index must be an integer, got {frame_index!r}")
+    frame_index = int(frame_index)
+    img = _check_frame(frame, setup)
+    sensor = setup.sensor
+    height, width = img.shape
+    if sensor.visible_lines != height:
+        raise ValueError(f"setup {setup.name!r}: sensor.visible_lines = {sensor.visible_lines} "
+                         f"but its camera image has {height} rows")
+    if img.dtype == np.uint8:
+        full_scale, black = 255.0, sensor.black_level_dn * 2.0 ** (8 - sensor.bit_depth)
+    else:
+        full_scale, black = float(2 ** sensor.bit_depth - 1), float(sensor.black_level_dn)
+    if params.saturation_dn is not None:
+        full_scale = float(params.saturation_dn)
+
+    # 1-2: background and threshold.
+    top = cv2.morphologyEx(img, cv2.MORPH_TOPHAT, _line_kernel(params.background_kernel_px))
+    sample = top[::4, ::4].astype(np.float32).ravel()
+    half = sample.size // 2
+    floor = float(np.partition(sample, half)[half])
+    mad = float(np.partition(np.abs(sample - floor), half)[half])
+    noise = max(1.4826 * mad, params.min_noise_dn)
+    thr = floor + params.threshold_sigma * noise
+    idx = np.flatnonzero(top > thr)
+    if idx.size == 0:
+        return _empty(frame_index, noise, thr)
+
+    # 3: components on the bounding rectangle of the candidates, padded so that every grown
+    # component box lies inside it.
+    m = params.centroid_margin_px
+    rows, cols = idx // width, idx % width
+    r0, r1 = max(int(rows.min()) - m, 0), min(int(rows.max()) + m + 1, height)
+    c0, c1 = max(int(cols.min()) - m, 0), min(int(cols.max()) + m + 1, width)
+    crop = np.zeros((r1 - r0, c1 - c0), dtype=np.uint8)
+    crop.ravel()[(rows - r0) * (c1 - c0) + (cols - c0)] = 1
+    # Grana's block-based algorithm: 3x faster than the default here, same labels.
+    _, labels, stats, _ = cv2.connectedComponentsWithStatsWithAlgorithm(crop, 8, cv2.CV_32S,
+                                                                        cv2.CCL_GRANA)
+    area = stats[1:, cv2.CC_STAT_AREA].astype(np.int64)
+    comp = np.flatnonzero((area >= params.min_area_px) & (area <= params.max_area_px))
+    if comp.size == 0:
+        return _empty(frame_index, noise, thr)
+
+    # 4: every grown box's pixels, component after component, and their weights.
+    px = _gather(stats[1:][comp], comp + 1, labels, r0, c0, m, height, width)
+    value = top[px.ys, px.xs].astype(np.float64) - floor
+    table, m_off = _frame_timing(sensor, setup.strobe, frame_index)
+    gain = 1.0 / np.maximum(table.total[px.ys + 1], params.band_weight_floor)
+    weight = np.maximum(value - params.centroid_floor_sigma * noise, 0.0) * gain
+    spots = _measure(px, value, weight, top, floor)
+
+    # 5: split blended neighbours, then filter.
+    blended = np.zeros(spots.u.size, dtype=bool)
+    area_out = area[comp]
+    elongated = np.flatnonzero(spots.elong > params.max_elongation)
+    if elongated.size:
+        px2 = _deblend(px, value, elongated, top, floor, params)
+        if px2 is not None:
+            value2 = top[px2.ys, px2.xs].astype(np.float64) - floor
+            gain2 = 1.0 / np.maximum(table.total[px2.ys + 1], params.band_weight_floor)
+            weight2 = np.maximum(value2 - params.centroid_floor_sigma * noise, 0.0) * gain2
+            spots2 = _measure(px2, value2, weight2, top, floor)
+            spots = _concat(spots, spots2)
+            px = _concat_pixels(px, px2)
+            value, weight, gain = (np.concatenate([a, b]) for a, b in
+                                   ((value, value2), (weight, weight2), (gain, gain2)))
+            blended = np.concatenate([blended, np.ones(spots2.u.size, dtype=bool)])
+            area_out = np.concatenate([area_out, np.bincount(px2.seg, px2.own, px2.n)
+                                       .astype(np.int64)])
+    raw_peak = np.maximum.reduceat(np.where(px.own, img[px.ys, px.xs], 0), px.starts)
+    saturated = raw_peak.astype(np.float64) >= full_scale
+    good = ((spots.flux > 0) & (spots.elong <= params.max_elongation)
+            & ((spots.neighbour >= params.min_neighbour_ratio) | saturated))
+    if not good.any():
+        return _empty(frame_index, noise, thr)
+
+    # 6: band and time, from the pulse at the centroid row and its two neighbours (the only
+    # ones a spot a few rows high can see).
+    n = spots.u.size
+    dom = table.dominant[np.clip(np.rint(spots.v).astype(np.int64), 0, height - 1) + 1]
+    n_pulse = table.weights.shape[1]
+    light = np.maximum(value, 0.0) * gain * px.usable
+    cols = dom[:, None] + np.arange(-1, 2)  # (n, 3)
+    valid = (dom[:, None] >= 0) & (cols >= 0) & (cols < n_pulse)
+    cols = np.clip(cols, 0, n_pulse - 1)
+    per_pulse = table.weights[px.ys[:, None] + 1, cols[px.seg]] * light[:, None]
+    sums = np.add.reduceat(np.concatenate([light[:, None], per_pulse], axis=1), px.starts, axis=0)
+    shares = np.where(valid, sums[:, 1:] / np.where(sums[:, :1] > 0, sums[:, :1], 1.0), 0.0)
+    ranked = np.sort(shares, axis=1)
+    lit = ranked[:, 2] > 0
+    col = np.where(lit, dom + np.argmax(shares, axis=1) - 1, 0)
+    strobe = setup.strobe
+    j_global = np.where(lit, table.local_index[col] - m_off, NO_PULSE).astype(np.int64)
+    time_s = np.where(lit, strobe.phase_s + j_global * strobe.period_s + 0.5 * strobe.pulse_s,
+                      np.nan)
+
+    # Cut by a band edge: the pulse's weight on the spot's rows (±1) dips below its peak.
+    rc = px.row1 - px.row0 + 2
+    rseg = np.repeat(np.arange(n), rc)
+    rstart = np.zeros(n, dtype=np.int64)
+    np.cumsum(rc[:-1], out=rstart[1:])
+    rr = np.clip(px.row0[rseg] - 1 + np.arange(int(rc.sum())) - rstart[rseg], -1, height) + 1
+    min_w = np.minimum.reduceat(table.weights[rr, col[rseg]], rstart)
+    cut = lit & (min_w < (1.0 - params.cut_tolerance) * table.plateau[col])
+
+    flags = (saturated * SATURATED | cut * CUT_BY_BAND_EDGE
+             | (lit & (ranked[:, 1] >= params.two_pulse_share)) * TWO_PULSES
+             | px.edge * IMAGE_EDGE | (~lit) * NO_BAND | blended * BLENDED).astype(np.int64)
+    sel = np.flatnonzero(good)
+    sel = sel[np.argsort(spots.v[sel], kind="stable")]
+    return GlintDetections(
+        u_px=spots.u[sel], v_px=spots.v[sel], intensity=spots.flux[sel],
+        area_px=area_out[sel], peak=raw_peak[sel].astype(np.float64) - black,
+        strobe_index=j_global[sel], time_s=time_s[sel], flags=flags[sel],
+        frame_index=frame_index, noise_dn=noise, threshold_dn=thr)
+
+
+@lru_cache(maxsize=8)
+def _line_kernel(length: int) -> np.ndarray:
+    return cv2.getStructuringElement(cv2.MORPH_RECT, (length, 1))
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+@dataclass(frozen=True, slots=True)
+class _Pixels:
+    """Pixels of n spots, spot after spot (segments start at ``starts``)."""
+
+    n: int
+    seg: np.ndarray  # (q,) spot of each pixel
+    starts: np.ndarray  # (n,) first pixel of each spot
+    ys: np.ndarray
+    xs: np.ndarray
+    own: np.ndarray  # (q,) bool: above threshold and in the spot's component
+    usable: np.ndarray  # (q,) bool: own or background (not another component's)
+    row0: np.ndarray  # (n,) first and last row of the spot's own pixels
+    row1: np.ndarray
+    edge: np.ndarray  # (n,) bool: the grown box touches the image border
+
+
+def _gather(st, lab_ids, labels, r0, c0, margin, height, width) -> _Pixels:
+    """The pixels of the component boxes (``st`` rows of connectedComponentsWithStats, in crop
+    coordinates) grown by ``margin``; ``labels`` is the crop's label image."""
+    n = st.shape[0]
+    x0 = np.maximum(st[:, 0] + c0 - margin, 0)
+    y0 = np.maximum(st[:, 1] + r0 - margin, 0)
+    x1 = np.minimum(st[:, 0] + c0 + st[:, 2] + margin, width)  # exclusive
+    y1 = np.minimum(st[:, 1] + r0 + st[:, 3] + margin, height)
+    bw = x1 - x0
+    counts = bw * (y1 - y0)
+    starts = np.zeros(n, dtype=np.int64)
+    np.cumsum(counts[:-1], out=starts[1:])
+    seg = np.repeat(np.arange(n), counts)
+    local = np.arange(int(counts.sum())) - starts[seg]
+    ys = y0[seg] + local // bw[seg]
+    xs = x0[seg] + local % bw[seg]
+    lab = labels[ys - r0, xs - c0]
+    own = lab == lab_ids[seg]
+    edge = (x0 == 0) | (y0 == 0) | (x1 == width) | (y1 == height)
+    return _Pixels(n, seg, starts, ys, xs, own, own | (lab == 0), st[:, 1] + r0,
+                   st[:, 1] + r0 + st[:, 3] - 1, edge)
+
+
+@dataclass(frozen=True, slots=True)
+class _Spots:
+    u: np.ndarray
+    v: np.ndarray
+    flux: np.ndarray
+    elong: np.ndarray
+    neighbour: np.ndarray
+
+
+def _measure(px: _Pixels, value, weight, top, floor) -> _Spots:
+    """Centroids, flux, elongation and peak sharpness of every spot, vectorised (pixels are
+    contiguous per spot, so one ``np.add.reduceat`` sums all the moments)."""
+    seg, starts = px.seg, px.starts
+    w = weight * px.usable
+    wo = weight * px.own  # second moments over the spot's own pixels: the skirt's noise has no shape
+    x = (px.xs - px.xs[starts][seg]).astype(np.float64)  # box-local coordinates: no cancellation
+    y = (px.ys - px.ys[starts][seg]).astype(np.float64)
+    sums = np.add.reduceat(np.stack([w, w * x, w * y, wo, wo * x, wo * y, wo * x * x, wo * y * y,
+                                     wo * x * y], axis=1), starts, axis=0)
+    s0 = sums[:, 0]
+    s0_safe = np.where(s0 > 0, s0, 1.0)
+    u = sums[:, 1] / s0_safe + px.xs[starts]
+    v = sums[:, 2] / s0_safe + px.ys[starts]
+    o0 = np.where(sums[:, 3] > 0, sums[:, 3], 1.0)
+    mx, my = sums[:, 4] / o0, sums[:, 5] / o0
+    sxx = sums[:, 6] / o0 - mx * mx
+    syy = sums[:, 7] / o0 - my * my
+    sxy = sums[:, 8] / o0 - mx * my
+    half_tr = 0.5 * (sxx + syy)
+    disc = np.sqrt(np.maximum(half_tr * half_tr - (sxx * syy - sxy * sxy), 0.0))
+    # + 1/12 px²: the second moment of one pixel, so that a one-pixel-wide spot stays finite.
+    elong = np.sqrt((half_tr + disc + 1 / 12) / (np.maximum(half_tr - disc, 0.0) + 1 / 12))
+    # Peak pixel (the first of a spot's maxima) and its brightest 4-neighbour.
+    vo = np.where(px.own, value, -np.inf)
+    peak = np.maximum.reduceat(vo, starts)
+    at = np.flatnonzero(vo == peak[seg])
+    first = at[np.concatenate([[True], seg[at][1:] != seg[at][:-1]])]
+    py, pxx = px.ys[first], px.xs[first]
+    h, wd = top.shape
+    nb = np.maximum.reduce([top[np.maximum(py - 1, 0), pxx], top[np.minimum(py + 1, h - 1), pxx],
+                            top[py, np.maximum(pxx - 1, 0)], top[py, np.minimum(pxx + 1, wd - 1)]])
+    neighbour = (nb.astype(np.float64) - floor) / np.where(peak > 0, peak, 1.0)
+    return _Spots(u, v, s0, elong, neighbour)
+
+
+def _deblend(px: _Pixels, value, spots_idx, top, floor, params: DetectionParams):
+    """Split elongated spots with 2..max_blend separated maxima among their maxima (each pixel
+    to its nearest maximum). Returns the new spots' pixels, or None when none splits."""
+    h, w = top.shape
+    parts = []
+    for s in spots_idx:
+        sl = slice(px.starts[s], px.starts[s + 1] if s + 1 < px.n else px.seg.size)
+        ys, xs, own, usable, val = px.ys[sl], px.xs[sl], px.own[sl], px.usable[sl], value[sl]
+        # 8-neighbour local maxima among the spot's own pixels.
+        nb = np.full(ys.size, -np.inf)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dy or dx:
+                    nb = np.maximum(nb, top[np.clip(ys + dy, 0, h - 1),
+                                            np.clip(xs + dx, 0, w - 1)].astype(np.float64) - floor)
+        cand = np.flatnonzero(own & (val > nb))
+        if not 2 <= cand.size <= params.max_blend:
+            continue
+        cy, cx, cv = ys[cand].astype(float), xs[cand].astype(float), val[cand]
+        separated = True
+        for a in range(cand.size):
+            for b in range(a + 1, cand.size):
+                t = np.linspace(0.0, 1.0, 2 + 2 * int(np.hypot(cy[a] - cy[b], cx[a] - cx[b])))
+                ly = np.rint(cy[a] + t * (cy[b] - cy[a])).astype(int)
+                lx = np.rint(cx[a] + t * (cx[b] - cx[a])).astype(int)
+                saddle = top[ly, lx].astype(np.float64).min() - floor
+                separated &= saddle < params.blend_saddle * min(cv[a], cv[b])
+        if not separated:
+            continue
+        nearest = np.argmin((ys[:, None] - cy) ** 2 + (xs[:, None] - cx) ** 2, axis=1)
+        for k in range(cand.size):
+            mine = nearest == k
+            rows = ys[mine & own]
+            parts.append((ys[mine], xs[mine], own[mine], usable[mine], rows.min(), rows.max(),
+                          px.edge[s]))
+    if not parts:
+        return None
+    counts = np.array([p[0].size for p in parts])
+    starts = np.zeros(len(parts), dtype=np.int64)
+    np.cumsum(counts[:-1], out=starts[1:])
+    cat = lambda i: np.concatenate([p[i] for p in parts])  # noqa: E731
+    return _Pixels(len(parts), np.repeat(np.arange(len(parts)), counts), starts, cat(0), cat(1),
+                   cat(2), cat(3), np.array([p[4] for p in parts]),
+                   np.array([p[5] for p in parts]), np.array([p[6] for p in parts]))
+
+
+def _concat(a: _Spots, b: _Spots) -> _Spots:
+    return _Spots(*(np.concatenate([x, y]) for x, y in zip(
+        (a.u, a.v, a.flux, a.elong, a.neighbour), (b.u, b.v, b.flux, b.elong, b.neighbour))))
+
+
+def _concat_pixels(a: _Pixels, b: _Pixels) -> _Pixels:
+    return _Pixels(a.n + b.n, np.concatenate([a.seg, b.seg + a.n]),
+                   np.concatenate([a.starts, b.starts + a.seg.size]),
+                   *(np.concatenate([x, y]) for x, y in zip(
+                       (a.ys, a.xs, a.own, a.usable, a.row0, a.row1, a.edge),
+                       (b.ys, b.xs, b.own, b.usable, b.row0, b.row1, b.edge))))

@@ -1,0 +1,595 @@
+"""Glint identification: which light made which glint, one band (one gaze sample) at a time.
+
+The SCET paper leaves this open (Sec. 5.1). A band shows only the glints whose rows its pulse
+lights (Sec. 2.3): a contiguous stretch of each arc's chain of glints, with some glints missing
+(dropouts, the limbus) and some blobs that are not glints (sclera and lid reflections that
+passed the detector). Identification is model-based:
+
+1. Hypotheses. With a prior (the previous sample's eye rotation), one: the prior. Without one
+   (cold start, lost track), a coarse search: the glints of every light are predicted once per
+   matcher on a grid of eye rotations (``grid_step_deg``) over the orbit (Sec. 2.2.1: the cornea
+   centre on a sphere of radius r_co about the eye centre), and each grid pose is scored against
+   the band's detections (below); the best few local minima of the score are kept.
+2. Per hypothesis, iterate: predict the glints with the closed-form projection
+   (:func:`estimator.projection.project_glints`, on the corneal cap), keep as candidates only
+   those inside the band's rows, assign detections to candidates with
+   ``scipy.optimize.linear_sum_assignment`` on squared distances with a gate (each detection
+   may stay unmatched at the cost of the gate), refit the cornea (:func:`estimator.cornea
+   .fit_cornea`, ``"orbit"`` or ``"center"``), re-predict, and re-assign, until the assignment
+   no longer changes. The gate starts wide (the hypothesis is coarse) and closes to
+   ``gate_px`` once the fit has locked on.
+3. Order. The lights' order along each arc is preserved in the image (the reflection is
+   continuous), so consecutive matched lights of one arc must be met in the same direction by
+   their detections as by their predictions; a pair that is not has one false match (a
+   spurious blob taken for a missing glint): the worse-fitting one is dropped and the fit
+   repeated.
+4. Choice and confidence. Each refined hypothesis is scored as a negative log-likelihood,
+   S = Σ_matched r² / σ² + (gate / σ)² per unmatched detection + ``missing_cost`` per predicted
+   glint well inside the band with no detection; the lowest S wins. The confidence of a match
+   is the product of (a) 1 - r / gate (the residual after the refit), (b) the margin to the
+   second-best assignment of that detection, min(1, (d₂ - r) / gate) with d₂ the distance to the
+   nearest other candidate or competing detection, and (c) for a cold start the margin to the
+   runner-up hypothesis, tanh((S₂ - S₁) / 4) (the likelihood-ratio odds of the two, mapped to
+   [0, 1]).
+
+Everything is in pixels (image) and SI units (geometry); angles are Fick (yaw, pitch) in rad.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from .cornea import FitProblem, fit_cornea
+from .eye import fick_angles, gaze_direction
+from .projection import project_glints
+from .setup import Setup
+
+#: Reason codes of a :class:`GlintMatch`.
+OK, TOO_FEW_GLINTS, NO_HYPOTHESIS, FIT_FAILED = "ok", "too_few_glints", "no_hypothesis", "fit_failed"
+
+
+@dataclass(frozen=True, slots=True)
+class MatchParams:
+    """Settings of :class:`GlintMatcher`, each with the reason for its default.
+
+    Attributes
+    ----------
+    gate_px : float
+        Largest detection-prediction distance of a match once the fit has locked on. Detected
+        glints carry 0.3-0.5 px of noise per axis: a 2D residual beyond 2.5 px has probability
+        exp(-2.5² / (2 0.5²)) = 4e-6 for a true glint, while the closest glints of one arc are
+        5.7 px apart (``paper_sim``).
+    coarse_gate_px : float
+        Gate of the first assignment from a grid pose: the grid node nearest the truth is up to
+        half a step off in each angle (0.5° x 3 px/° x sqrt 2 = 2.1 px at 1°), plus the noise.
+    prior_gate_px : float
+        Gate of the first assignment from a prior: the eye turns up to ~0.7° in the 1 ms
+        between two bands in a saccade (700°/s), ~2 px of glint motion, plus the noise.
+    noise_px : float
+        σ of the likelihood score (px): the upper end of the detector's error.
+    missing_cost : float
+        Score of a glint predicted well inside the band but not detected. Dropouts are
+        common (5-10 %), so much less than an unmatched detection ((gate/σ)² = 25); enough that
+        a pose predicting a dense pattern over an empty band loses to one predicting nothing.
+    band_margin_px : float
+        Predicted glints up to this far outside the band's rows are still candidates (their
+        detection may sit inside), and only those this far inside count as missing.
+    model : {"orbit", "center"}
+        Cornea fit: 2 unknowns on the orbit (robust, needs the eye calibration) or the free
+        centre (3 unknowns).
+    max_iter : int
+        Match-refit rounds per hypothesis; the assignment is stable after 2-3.
+    hypotheses : int
+        Local minima of the coarse score refined on a cold start.
+    shift_sources : int
+        Leading hypotheses whose identities are also tried shifted by ±1 and ±2 lights
+        along their arcs.
+    prior_hypotheses, prior_window_deg : int, float
+        With a prior, the local minima of the coarse score within ±window of it refined
+        beside the prior itself (the chain shifted by one light is ~2-3° away).
+    grid_step_deg, grid_yaw_deg, grid_pitch_deg : float
+        Coarse grid of eye rotations: step, and half-ranges in yaw and pitch. The paper's
+        screen (48 x 30 cm at 70 cm) spans ±19° yaw and -16°..+8° pitch; ±35° covers it with
+        room for a larger screen or a poor prior.
+    min_matches : int
+        Fewer matched glints than this after the refit is "too_few_glints": a single glint
+        fits any orbit pose through it, two rarely pin the identity.
+    """
+
+    gate_px: float = 2.5
+    coarse_gate_px: float = 4.0
+    prior_gate_px: float = 5.0
+    noise_px: float = 0.5
+    missing_cost: float = 4.0
+    band_margin_px: float = 2.0
+    model: str = "orbit"
+    max_iter: int = 8
+    hypotheses: int = 6
+    prior_hypotheses: int = 3
+    shift_sources: int = 2
+    prior_window_deg: float = 3.0
+    grid_step_deg: float = 1.0
+    grid_yaw_deg: float = 35.0
+    grid_pitch_deg: float = 35.0
+    min_matches: int = 3
+
+    def __post_init__(self):
+        if self.model not in ("orbit", "center"):
+            raise ValueError(f"model must be 'orbit' or 'center', got {self.model!r}")
+        for name in ("gate_px", "coarse_gate_px", "prior_gate_px", "noise_px", "grid_step_deg"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
+        if self.max_iter < 1 or self.hypotheses < 1 or self.min_matches < 1:
+            raise ValueError("max_iter, hypotheses and min_matches must be >= 1")
+
+
+@dataclass(frozen=True, slots=True)
+class GlintMatch:
+    """Identities of the k detections of one band.
+
+    Attributes
+    ----------
+    light_index : (k,) int64
+        Light that made each detection; -1 where unmatched (spurious or unexplained).
+    confidence : (k,) float
+        In [0, 1]; 0 where unmatched (see the module docstring).
+    residual_px : (k,) float
+        Distance to the light's predicted glint after the refit; NaN where unmatched.
+    cornea_center_m : (3,) float
+        Refit cornea centre; NaN when the match failed.
+    angles_rad : (2,) float
+        Fick (yaw, pitch) of the cornea centre about the eye centre.
+    rms_px : float
+        RMS residual of the matched glints.
+    score : float
+        Negative log-likelihood S of the chosen hypothesis.
+    hypothesis_margin : float
+        S of the runner-up hypothesis minus S of the chosen one (inf with a single hypothesis).
+    iterations : int
+        Match-refit rounds of the chosen hypothesis.
+    reason : str
+        ``"ok"``, ``"too_few_glints"``, ``"no_hypothesis"`` or ``"fit_failed"``.
+    """
+
+    light_index: np.ndarray
+    confidence: np.ndarray
+    residual_px: np.ndarray
+    cornea_center_m: np.ndarray
+    angles_rad: np.ndarray
+    rms_px: float
+    score: float
+    hypothesis_margin: float
+    iterations: int
+    reason: str
+
+    @property
+    def ok(self) -> bool:
+        return self.reason == OK
+
+    @property
+    def matched(self) -> np.ndarray:
+        """(k,) bool: detections given a light."""
+        return self.light_index >= 0
+
+
+@dataclass(frozen=True, slots=True)
+class _Hypothesis:
+    x: np.ndarray  # fit parameters: angles (2,) or centre (3,)
+    assign: np.ndarray  # (k,) light per detection, -1 unmatched
+    residual: np.ndarray  # (k,)
+    pred: np.ndarray  # (n, 2) predicted glints at x
+    cand: np.ndarray  # (n,) candidate (visible, in band)
+    score: float
+    iterations: int
+    fit_ok: bool
+
+
+class GlintMatcher:
+    """Identifies the glints of bands for one setup (camera, eye, lights).
+
+    Building one predicts every light's glint over the coarse grid of eye rotations (about
+    0.1 s for 40 lights); keep it for a whole sequence.
+
+    Parameters
+    ----------
+    setup : Setup
+        Camera, eye (rotation centre, cornea offset and radius, limbus) and lights.
+    params : MatchParams
+    """
+
+    def __init__(self, setup: Setup, params: MatchParams = MatchParams()):
+        self.setup = setup
+        self.params = params
+        eye = setup.eye
+        self.lights_world_m = np.asarray(setup.lights_world_m, dtype=np.float64)
+        self.group = np.asarray(setup.lights.group_index)
+        self.problem = FitProblem(setup.camera, self.lights_world_m, eye.cornea_radius_m,
+                                  eye.rotation_center_m, eye.cornea_offset_m)
+        step = math.radians(params.grid_step_deg)
+        yaw = np.arange(-params.grid_yaw_deg, params.grid_yaw_deg + 1e-9, params.grid_step_deg)
+        pitch = np.arange(-params.grid_pitch_deg, params.grid_pitch_deg + 1e-9,
+                          params.grid_step_deg)
+        Y, P = np.meshgrid(np.radians(yaw), np.radians(pitch), indexing="ij")
+        self._grid_shape = Y.shape
+        self._grid_step = step
+        self.grid_angles_rad = np.stack([Y.ravel(), P.ravel()], axis=-1)
+        self.grid_glints_px, self.grid_visible = self.predict(self.grid_angles_rad)
+
+    # ----------------------------------------------------------------------- prediction
+
+    def predict(self, angles_rad) -> tuple[np.ndarray, np.ndarray]:
+        """Glints of every light for eye rotations on the orbit.
+
+        Parameters
+        ----------
+        angles_rad : (..., 2) float
+            Fick (yaw, pitch).
+
+        Returns
+        -------
+        glints_px : (..., n, 2) float
+        visible : (..., n) bool
+            On the corneal cap, seen and inside the image.
+        """
+        a = np.asarray(angles_rad, dtype=np.float64)
+        eye = self.setup.eye
+        center = eye.cornea_center(a[..., 0], a[..., 1])
+        axis = gaze_direction(a[..., 0], a[..., 1])
+        return project_glints(self.setup.camera, center, eye.cornea_radius_m, self.lights_world_m,
+                              cornea_axis=axis, cap_cos_min=eye.cap_cos_min)
+
+    def _predict_x(self, x):
+        """Glints at fit parameters x (angles for "orbit", centre for "center")."""
+        if self.params.model == "orbit":
+            return self.predict(x)
+        eye = self.setup.eye
+        axis = np.asarray(x, dtype=np.float64) - eye.rotation_center_m
+        axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+        return project_glints(self.setup.camera, x, eye.cornea_radius_m, self.lights_world_m,
+                              cornea_axis=axis, cap_cos_min=eye.cap_cos_min)
+
+    def _x_from_angles(self, angles):
+        if self.params.model == "orbit":
+            return np.asarray(angles, dtype=np.float64)
+        return self.setup.eye.cornea_center(angles[0], angles[1])
+
+    def _angles_center(self, x):
+        eye = self.setup.eye
+        if self.params.model == "orbit":
+            return np.asarray(x, dtype=np.float64), eye.cornea_center(x[0], x[1])
+        yaw, pitch = fick_angles(x - eye.rotation_center_m)
+        return np.array([float(yaw), float(pitch)]), np.asarray(x, dtype=np.float64)
+
+    # ----------------------------------------------------------------------- matching
+
+    def match(self, glints_px, rows=None, prior_angles_rad=None) -> GlintMatch:
+        """Identify the detections of one band.
+
+        Parameters
+        ----------
+        glints_px : (k, 2) float
+            Detected glints of the band (pixel-centre convention), spurious blobs included.
+        rows : (float, float), optional
+            First and last image row the band's pulse lights (e.g. ``Band.first_row`` and
+            ``Band.last_row`` of :func:`estimator.banding.band_layout`): only glints predicted
+            within them are candidates. Default: the whole image.
+        prior_angles_rad : (2,) float, optional
+            Eye rotation (Fick yaw, pitch) of the previous sample. Without it: coarse search
+            over the whole grid.
+
+        Returns
+        -------
+        GlintMatch
+        """
+        g = np.asarray(glints_px, dtype=np.float64)
+        if g.ndim != 2 or g.shape[1] != 2:
+            raise ValueError(f"glints_px must have shape (k, 2), got {g.shape}")
+        if not np.isfinite(g).all():
+            raise ValueError("glints_px must be finite")
+        cam = self.setup.camera
+        lo, hi = (-0.5, cam.height_px - 0.5) if rows is None else (float(rows[0]), float(rows[1]))
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+            raise ValueError(f"rows must be finite (first, last) with first <= last, got {rows!r}")
+        k = g.shape[0]
+        if k == 0:
+            return self._failure(0, TOO_FEW_GLINTS)
+        p = self.params
+        if prior_angles_rad is not None:
+            prior = np.asarray(prior_angles_rad, dtype=np.float64).reshape(2)
+            if not np.isfinite(prior).all():
+                raise ValueError("prior_angles_rad must be finite")
+            # The prior, and the best grid poses near it: a prior a few pixels off can lock
+            # onto the arc's chain shifted by one light, which only a rival start exposes.
+            near = np.abs(self.grid_angles_rad - prior).max(axis=1) <= math.radians(
+                p.prior_window_deg)
+            starts = [prior] + (self._coarse(g, lo, hi, near, p.prior_hypotheses)
+                                if p.prior_hypotheses else [])
+            result = self._choose(g, lo, hi, starts, p.prior_gate_px)
+            if result is not None and result.ok and result.light_index.size and \
+                    (result.light_index >= 0).sum() >= 0.5 * k:
+                return result
+        starts = self._coarse(g, lo, hi, None, p.hypotheses)
+        result = self._choose(g, lo, hi, starts, p.coarse_gate_px)
+        return result if result is not None else self._failure(k, NO_HYPOTHESIS)
+
+    def _choose(self, g, lo, hi, starts, first_gate) -> GlintMatch | None:
+        """Refine the starting poses, keep the lowest score; None when none matches anything."""
+        if not starts:
+            return None
+        refined = self._refine(g, lo, hi, np.array([self._x_from_angles(a) for a in starts]),
+                               first_gate)
+        if not refined:
+            return None
+        refined.sort(key=lambda h: h.score)
+        # The arc's chain shifted by a light or two along itself is the classic wrong basin
+        # (the glints are near-evenly spaced): test those identities explicitly from the
+        # leading hypotheses, starting from a fit of the shifted assignment.
+        shifted = [(h, self._shift(h.assign, step)) for h in refined[: self.params.shift_sources]
+                   for step in (-2, -1, 1, 2)]
+        shifted = [(h, a) for h, a in shifted if (a >= 0).any()]
+        if shifted:
+            refined += self._refine(g, lo, hi, np.array([h.x for h, _ in shifted]),
+                                    self.params.gate_px, [a for _, a in shifted])
+            refined.sort(key=lambda h: h.score)
+        best = refined[0]
+        # Runner-up: the best hypothesis whose identities differ from the winner's.
+        margin = math.inf
+        for h in refined[1:]:
+            if not np.array_equal(h.assign, best.assign):
+                margin = h.score - best.score
+                break
+        return self._result(g, best, margin)
+
+    def _shift(self, assign, step: int) -> np.ndarray:
+        """Every matched light moved ``step`` places along its own arc (-1 where that leaves
+        the arc)."""
+        out = np.full_like(assign, -1)
+        m = assign >= 0
+        moved = assign[m] + step
+        n = self.lights_world_m.shape[0]
+        inside = (moved >= 0) & (moved < n)
+        same = np.zeros_like(inside)
+        same[inside] = self.group[moved[inside]] == self.group[assign[m][inside]]
+        out[np.flatnonzero(m)[same]] = moved[same]
+        return out
+
+    def _failure(self, k: int, reason: str) -> GlintMatch:
+        return GlintMatch(np.full(k, -1, dtype=np.int64), np.zeros(k), np.full(k, np.nan),
+                          np.full(3, np.nan), np.full(2, np.nan), math.nan, math.inf, 0.0, 0,
+                          reason)
+
+    # ----------------------------------------------------------------------- coarse search
+
+    def _coarse(self, g, lo, hi, nodes, count) -> list[np.ndarray]:
+        """Angles of the ``count`` best local minima of the score over the grid (or over the
+        grid nodes where ``nodes`` is True)."""
+        p = self.params
+        pred, vis = self.grid_glints_px, self.grid_visible
+        v = pred[..., 1]
+        cand = vis & (v >= lo - p.band_margin_px) & (v <= hi + p.band_margin_px)
+        if nodes is not None:
+            cand &= nodes[:, None]
+        n_nodes, n_lights = cand.shape
+        pair = np.flatnonzero(cand)  # (node, light) pairs, node-major
+        if pair.size == 0:
+            return []
+        node, light = pair // n_lights, pair % n_lights
+        gate2 = p.coarse_gate_px ** 2
+        # Squared distance of every detection to every candidate glint of every node.
+        du = pred[node, light, 0][:, None] - g[None, :, 0]
+        dv = pred[node, light, 1][:, None] - g[None, :, 1]
+        d2 = du * du + dv * dv  # (pairs, k)
+        first = np.flatnonzero(np.concatenate([[True], node[1:] != node[:-1]]))
+        used = node[first]
+        # A detection is scored at its node's nearest candidate; a candidate well inside the
+        # band is missing when no detection lies within the gate. The grid is up to 2 px off,
+        # so distances are scored against the coarse gate: a detection at the coarse gate
+        # costs as much as an unmatched one.
+        near = np.minimum(np.minimum.reduceat(d2, first, axis=0), gate2)  # (nodes used, k)
+        inside = (v[node, light] >= lo + p.band_margin_px) & (v[node, light] <= hi - p.band_margin_px)
+        missing = np.add.reduceat((inside & (d2.min(axis=1) > gate2)).astype(np.float64), first)
+        unmatched_cost = p.gate_px ** 2 / p.noise_px ** 2
+        score = np.full(n_nodes, np.inf)
+        score[used] = near.sum(axis=1) / gate2 * unmatched_cost + p.missing_cost * missing
+        score = score.reshape(self._grid_shape)
+        # Local minima over 3x3 neighbourhoods, best first; a node no better than leaving
+        # every detection unmatched is no hypothesis.
+        padded = np.pad(score, 1, constant_values=np.inf)
+        h, w = score.shape
+        nb = np.min([padded[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx]
+                     for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx], axis=0)
+        flat = score.ravel()
+        minima = np.flatnonzero((flat <= nb.ravel()) & (flat < g.shape[0] * unmatched_cost))
+        order = minima[np.argsort(flat[minima], kind="stable")][:count]
+        return [self.grid_angles_rad[i] for i in order]
+
+    # ----------------------------------------------------------------------- refinement
+
+    def _assign(self, g, pred, cand, gate):
+        """Gated optimal assignment: (k,) light per detection (-1 none) and its distance."""
+        k = g.shape[0]
+        lights = np.flatnonzero(cand)
+        assign = np.full(k, -1, dtype=np.int64)
+        dist = np.full(k, np.nan)
+        if lights.size == 0:
+            return assign, dist
+        d2 = ((g[:, None, :] - pred[None, lights, :]) ** 2).sum(-1)
+        gate2 = gate * gate
+        big = 1e6 * gate2
+        # Columns: the candidates, then one "unmatched" option per detection at the gate's cost.
+        cost = np.full((k, lights.size + k), big)
+        cost[:, : lights.size] = np.where(d2 <= gate2, d2, big)
+        cost[np.arange(k), lights.size + np.arange(k)] = gate2
+        r, c = linear_sum_assignment(cost)
+        real = c < lights.size
+        r, c = r[real], c[real]
+        real = d2[r, c] <= gate2
+        assign[r[real]] = lights[c[real]]
+        dist[r[real]] = np.sqrt(d2[r[real], c[real]])
+        return assign, dist
+
+    def _fit(self, g, assigns, X):
+        """Refit every hypothesis from X (H, p) with its matched detections, in one batched
+        call; returns (X, ok (H,))."""
+        n = self.lights_world_m.shape[0]
+        glints = np.full((len(assigns), n, 2), np.nan)
+        for h, assign in enumerate(assigns):
+            m = assign >= 0
+            glints[h, assign[m]] = g[m]
+        fit = fit_cornea(self.problem, glints, None, X, model=self.params.model)
+        x_new = fit.angles_rad if self.params.model == "orbit" else fit.center_m
+        ok = fit.ok & np.isfinite(x_new).all(axis=1)
+        return np.where(ok[:, None], x_new, X), ok
+
+    def _candidates(self, X, lo, hi):
+        """Predicted glints (H, n, 2), candidates and glints well inside the band (H, n)."""
+        pred, vis = self._predict_x(X)
+        v = pred[..., 1]
+        m = self.params.band_margin_px
+        return pred, vis & (v >= lo - m) & (v <= hi + m), vis & (v >= lo + m) & (v <= hi - m)
+
+    def _refine(self, g, lo, hi, X, first_gate, first_assign=None) -> list[_Hypothesis]:
+        """Match -> refit -> re-predict -> re-match every start in X (H, p) until its
+        assignment is stable; hypotheses that reach the same assignment are merged.
+        ``first_assign`` (H lists of (k,) lights) replaces the first round's matching."""
+        p = self.params
+        X = np.array(X, dtype=np.float64)
+        H = X.shape[0]
+        gate = np.full(H, first_gate)
+        prev: list = [None] * H
+        fit_ok = np.zeros(H, dtype=bool)
+        iters = np.zeros(H, dtype=int)
+        active = np.ones(H, dtype=bool)
+        alive = np.ones(H, dtype=bool)
+        for it in range(p.max_iter):
+            idx = np.flatnonzero(active)
+            if idx.size == 0:
+                break
+            if it > 0 or first_assign is None:
+                pred, cand, _ = self._candidates(X[idx], lo, hi)
+            to_fit, assigns = [], []
+            seen = {}
+            for a, h in enumerate(idx):
+                if it == 0 and first_assign is not None:
+                    assign = first_assign[h]
+                else:
+                    assign, _ = self._assign(g, pred[a], cand[a], gate[h])
+                key = assign.tobytes()
+                if not (assign >= 0).any() or (key in seen and gate[h] == gate[seen[key]]):
+                    active[h] = alive[h] = False  # nothing matched, or a duplicate
+                    continue
+                seen[key] = h
+                if prev[h] is not None and np.array_equal(assign, prev[h]) and gate[h] == p.gate_px:
+                    active[h] = False
+                    continue
+                prev[h] = assign
+                to_fit.append(h)
+                assigns.append(assign)
+            if to_fit:
+                X[to_fit], ok = self._fit(g, assigns, X[to_fit])
+                fit_ok[to_fit] = ok
+                iters[to_fit] += 1
+                gate[np.array(to_fit)[ok]] = p.gate_px
+        keep = np.flatnonzero(alive)
+        if keep.size == 0:
+            return []
+        # Final assignment at the final gate, the arc order enforced, and one more refit where
+        # it changed the matches.
+        X = X[keep]
+        pred, cand, _ = self._candidates(X, lo, hi)
+        assigns = [self._enforce_order(g, pred[a], self._assign(g, pred[a], cand[a], p.gate_px)[0])
+                   for a in range(keep.size)]
+        changed = [a for a in range(keep.size)
+                   if prev[keep[a]] is None or not np.array_equal(assigns[a], prev[keep[a]])]
+        changed = [a for a in changed if (assigns[a] >= 0).any()]
+        ok = fit_ok[keep].copy()
+        if changed:
+            X[changed], ok_c = self._fit(g, [assigns[a] for a in changed], X[changed])
+            ok[changed] = ok_c
+        pred, cand, inside = self._candidates(X, lo, hi)
+        sigma2 = p.noise_px ** 2
+        out = []
+        for a in range(keep.size):
+            assign, dist = self._assign(g, pred[a], cand[a], p.gate_px)
+            assign = self._enforce_order(g, pred[a], assign)
+            dist = np.where(assign >= 0, dist, np.nan)
+            matched = assign >= 0
+            detected = np.zeros(self.lights_world_m.shape[0], dtype=bool)
+            detected[assign[matched]] = True
+            score = (np.sum(dist[matched] ** 2) / sigma2
+                     + (~matched).sum() * p.gate_px ** 2 / sigma2
+                     + p.missing_cost * (inside[a] & ~detected).sum())
+            out.append(_Hypothesis(X[a].copy(), assign, dist, pred[a], cand[a], float(score),
+                                   int(iters[keep[a]]), bool(ok[a])))
+        return out
+
+    def _enforce_order(self, g, pred, assign):
+        """Drop matches that break the lights' order along their arc (module docstring, 3)."""
+        assign = assign.copy()
+        for _ in range(assign.size):
+            det = np.flatnonzero(assign >= 0)
+            if det.size < 2:
+                break
+            lights = assign[det]
+            order = np.lexsort((lights, self.group[lights]))
+            det, lights = det[order], lights[order]
+            same = self.group[lights[1:]] == self.group[lights[:-1]]
+            dp = pred[lights[1:]] - pred[lights[:-1]]
+            dq = g[det[1:]] - g[det[:-1]]
+            bad = np.flatnonzero(same & ((dp * dq).sum(axis=1) <= 0))
+            if bad.size == 0:
+                break
+            a, b = det[bad[0]], det[bad[0] + 1]
+            ra = np.linalg.norm(g[a] - pred[assign[a]])
+            rb = np.linalg.norm(g[b] - pred[assign[b]])
+            assign[a if ra >= rb else b] = -1
+        return assign
+
+    # ----------------------------------------------------------------------- result
+
+    def _result(self, g, h: _Hypothesis, margin: float) -> GlintMatch:
+        p = self.params
+        k = g.shape[0]
+        matched = h.assign >= 0
+        n_matched = int(matched.sum())
+        angles, center = self._angles_center(h.x)
+        rms = float(np.sqrt(np.mean(h.residual[matched] ** 2))) if n_matched else math.nan
+        if not h.fit_ok:
+            reason = FIT_FAILED
+        elif n_matched < p.min_matches:
+            reason = TOO_FEW_GLINTS
+        else:
+            reason = OK
+        # Confidence: residual, margin to the second-best assignment, hypothesis margin.
+        conf = np.zeros(k)
+        if n_matched:
+            lights = np.flatnonzero(h.cand)
+            d_all = np.sqrt(((g[:, None, :] - h.pred[None, lights, :]) ** 2).sum(-1))  # (k, m)
+            det = np.flatnonzero(matched)
+            own = np.searchsorted(lights, h.assign[det])
+            r = h.residual[det]
+            other_cand = d_all[det].copy()
+            other_cand[np.arange(det.size), own] = np.inf
+            other_det = d_all[:, own].copy()  # other detections near the matched prediction
+            other_det[det, np.arange(det.size)] = np.inf
+            d2 = np.minimum(other_cand.min(axis=1, initial=np.inf),
+                            other_det.min(axis=0, initial=np.inf))
+            c_res = np.clip(1.0 - r / p.gate_px, 0.0, 1.0)
+            c_alt = np.clip((d2 - r) / p.gate_px, 0.0, 1.0)
+            c_hyp = 1.0 if math.isinf(margin) else math.tanh(max(margin, 0.0) / 4.0)
+            conf[det] = c_res * c_alt * c_hyp
+        if reason != OK:
+            conf[:] = 0.0
+        return GlintMatch(h.assign.copy(), conf, h.residual.copy(), center, angles, rms,
+                          h.score, margin, h.iterations, reason)
+
+
+def match_glints(glints_px, setup: Setup, rows=None, prior_angles_rad=None,
+                 params: MatchParams = MatchParams()) -> GlintMatch:
+    """One-off :meth:`GlintMatcher.match` (builds the matcher's grid: keep a
+    :class:`GlintMatcher` to match many bands)."""
+    return GlintMatcher(setup, params).match(glints_px, rows, prior_angles_rad)
