@@ -172,7 +172,8 @@ def fit_cornea(problem: FitProblem, glints_px, mask=None, x0=None, *, model: str
     solver : {"lm", "trf"}
         Our batched Levenberg-Marquardt, or the paper's scipy trust-region-reflective.
     lower, upper : (p,) float, optional
-        Bounds (TRF enforces them; LM clips its steps to them).
+        Bounds. TRF enforces them its own way; LM holds an unknown on its bound while the
+        gradient pushes it outward (an active set) and clips steps to the box.
     max_iter : int
     """
     if model not in MODELS:
@@ -269,6 +270,15 @@ def _lm(model, problem, glints, mask, x0, enough, lo, hi, max_iter):
         g = (Jt @ ri[..., None])[..., 0]
         diag = np.einsum("bii->bi", JtJ)
         A = JtJ + (lam[idx, None] * np.maximum(diag, 1e-30))[..., None] * np.eye(p)
+        # Active set: an unknown sitting on a bound whose gradient pushes it outward is held
+        # there (its row and column of the system become identity), so the others still reach
+        # the constrained minimum instead of being dragged by a clipped step.
+        xi = x[idx]
+        held = ((xi <= lo) & (g > 0)) | ((xi >= hi) & (g < 0))
+        if held.any():
+            free = ~held
+            A = A * free[:, :, None] * free[:, None, :] + held[:, :, None] * np.eye(p)
+            g = g * free
         step = -np.linalg.solve(A, g[..., None])[..., 0]
         x_new = np.clip(x[idx] + step, lo, hi)
         # A Gauss-Newton step this small leaves an error of order its square: take it and stop

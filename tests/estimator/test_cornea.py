@@ -97,3 +97,18 @@ def test_bad_input(problem, setup):
     with pytest.raises(ValueError, match="orbit"):
         fit_cornea(FitProblem(setup.camera, setup.lights_world_m, 7.8e-3), np.zeros((1, 40, 2)), None,
                    [0, 0], model="orbit")
+
+
+def test_lm_reaches_the_bounded_minimum_like_trf(setup, problem):
+    """A bound that cuts off the free minimum: LM's active set must find the same constrained
+    minimum as scipy's TRF (a clipped step alone stops up to 0.2 mm away)."""
+    obs = simulate_glints(setup, parse_targets("grid:6x4", setup), noise_px=0.5, rng=1)
+    lo = [-1.0, -1.0, -1.0]
+    hi = [1.0, 1.0, obs.cornea_center_m[:, 2].min() - 1e-4]
+    a = fit_cornea(problem, obs.glints_px, obs.visible, setup.eye.cornea_center(0, 0), lower=lo, upper=hi)
+    b = fit_cornea(problem, obs.glints_px, obs.visible, setup.eye.cornea_center(0, 0), solver="trf",
+                   lower=lo, upper=hi)
+    assert a.ok.all() and b.ok.all()
+    assert np.all(a.center_m[:, 2] == hi[2])
+    assert np.abs(a.center_m - b.center_m).max() < 1e-9  # metres
+    assert np.allclose(a.rms_px, b.rms_px, atol=1e-9)
