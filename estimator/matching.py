@@ -5,40 +5,49 @@ lights (Sec. 2.3): a contiguous stretch of each arc's chain of glints, with some
 (dropouts, the limbus) and some blobs that are not glints (sclera and lid reflections that
 passed the detector). Identification is model-based:
 
-1. Hypotheses. With a prior (the previous sample's eye rotation), one: the prior. Without one
-   (cold start, lost track), a coarse search: the glints of every light are predicted once per
-   matcher on a grid of eye rotations (``grid_step_deg``) over the orbit (Sec. 2.2.1: the cornea
-   centre on a sphere of radius r_co about the eye centre), and each grid pose is scored against
-   the band's detections (below); the best few local minima of the score are kept.
-2. Per hypothesis, iterate: predict the glints with the closed-form projection
-   (:func:`estimator.projection.project_glints`, on the corneal cap), keep as candidates only
-   those inside the band's rows, assign detections to candidates with
+1. Hypotheses. Without a prior (cold start, lost track): a coarse search. The glints of every
+   light are predicted once per matcher on a grid of eye rotations (``grid_step_deg``) over the
+   orbit (Sec. 2.2.1: the cornea centre on a sphere of radius r_co about the eye centre); each
+   grid pose is scored against the band's detections (the score below, at the coarse gate) and
+   the best local minima are kept. With a prior (the previous sample's rotation): the prior,
+   and the best local minima of the grid within ``prior_window_deg`` of it.
+2. Refinement, per hypothesis and batched over them: predict the glints with the closed-form
+   projection (:func:`estimator.projection.project_glints`, on the corneal cap), keep as
+   candidates only those inside the band's rows, assign detections to candidates with
    ``scipy.optimize.linear_sum_assignment`` on squared distances with a gate (each detection
-   may stay unmatched at the cost of the gate), refit the cornea (:func:`estimator.cornea
-   .fit_cornea`, ``"orbit"`` or ``"center"``), re-predict, and re-assign, until the assignment
-   no longer changes. The gate starts wide (the hypothesis is coarse) and closes to
-   ``gate_px`` once the fit has locked on.
-3. Order. The lights' order along each arc is preserved in the image (the reflection is
-   continuous), so consecutive matched lights of one arc must be met in the same direction by
-   their detections as by their predictions; a pair that is not has one false match (a
-   spurious blob taken for a missing glint): the worse-fitting one is dropped and the fit
-   repeated.
-4. Choice and confidence. Each refined hypothesis is scored as a negative log-likelihood,
-   S = Σ_matched r² / σ² + (gate / σ)² per unmatched detection + ``missing_cost`` per predicted
-   glint well inside the band with no detection; the lowest S wins. The confidence of a match
-   is the product of (a) 1 - r / gate (the residual after the refit), (b) the margin to the
-   second-best assignment of that detection, min(1, (d₂ - r) / gate) with d₂ the distance to the
-   nearest other candidate or competing detection, and (c) for a cold start the margin to the
-   runner-up hypothesis, tanh((S₂ - S₁) / 4) (the likelihood-ratio odds of the two, mapped to
-   [0, 1]).
+   may stay unmatched at the cost of the gate), refit the cornea
+   (:func:`estimator.cornea.fit_cornea`, ``"orbit"`` or ``"center"``), re-predict, re-assign,
+   until the assignment no longer changes. The gate starts wide (the hypothesis is coarse) and
+   closes to ``gate_px`` once the fit has locked on.
+3. The arc's layout. The lights' order along each arc is preserved in the image (the
+   reflection is continuous), which is used twice. (a) The classic wrong answer is the chain
+   shifted by a light or two along itself (the glints are near-evenly spaced): those
+   identities are refined explicitly, as hypotheses whose first assignment is the leader's
+   shifted by ±1 and ±2 lights along their own arcs. (b) Consecutive matched lights of one arc
+   must be met in the same direction by their detections as by their predictions; a pair that
+   is not holds a false match (a blob taken for a missing glint): the worse-fitting one is
+   dropped and the fit repeated.
+4. Choice. Each refined hypothesis is scored as a negative log-likelihood,
+   S = Σ_matched r² / σ² + ``unmatched_cost`` per unmatched detection + ``missing_cost`` per
+   predicted glint well inside the band with no detection, plus, with a prior, the squared
+   distance from it in units of ``prior_sigma_deg``. The lowest S wins; a winner less than
+   ``min_margin`` ahead of a rival with other identities is "ambiguous", and, like a band with
+   too few matches, returns no identities (a NaN sample with a reason, not a guess).
+5. Confidence of each match: the product of (a) 1 - r / gate (the residual after the refit),
+   (b) the margin to the second-best assignment of that detection, min(1, (d₂ - r) / gate)
+   with d₂ the distance to the nearest other candidate or competing detection, and (c) the
+   margin to the runner-up hypothesis, tanh((S₂ - S₁) / 4) (their likelihood-ratio odds
+   mapped to [0, 1]).
 
+Lights whose glints nearly coincide (in ``paper_sim_doubled`` light i and light 40 + i, i < 8,
+sit within 1 mm of each other) are indistinguishable: either identity may be returned.
 Everything is in pixels (image) and SI units (geometry); angles are Fick (yaw, pitch) in rad.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -49,7 +58,8 @@ from .projection import project_glints
 from .setup import Setup
 
 #: Reason codes of a :class:`GlintMatch`.
-OK, TOO_FEW_GLINTS, NO_HYPOTHESIS, FIT_FAILED = "ok", "too_few_glints", "no_hypothesis", "fit_failed"
+OK, TOO_FEW_GLINTS, NO_HYPOTHESIS, FIT_FAILED, AMBIGUOUS = (
+    "ok", "too_few_glints", "no_hypothesis", "fit_failed", "ambiguous")
 
 
 @dataclass(frozen=True, slots=True)
@@ -72,9 +82,9 @@ class MatchParams:
     noise_px : float
         σ of the likelihood score (px): the upper end of the detector's error.
     missing_cost : float
-        Score of a glint predicted well inside the band but not detected. Dropouts are
-        common (5-10 %), so much less than an unmatched detection ((gate/σ)² = 25); enough that
-        a pose predicting a dense pattern over an empty band loses to one predicting nothing.
+        Score of a glint predicted well inside the band but not detected: -2 log(0.1), a
+        dropout rate of 5-10 %. Much less than an unmatched detection, enough that a pose
+        predicting a dense pattern over an empty band loses to one predicting nothing.
     band_margin_px : float
         Predicted glints up to this far outside the band's rows are still candidates (their
         detection may sit inside), and only those this far inside count as missing.
@@ -87,7 +97,8 @@ class MatchParams:
         Local minima of the coarse score refined on a cold start.
     shift_sources : int
         Leading hypotheses whose identities are also tried shifted by ±1 and ±2 lights
-        along their arcs.
+        along their arcs. One suffices: the leader is the one a shifted chain competes with
+        (measured: 2 changed nothing on 300 bands).
     prior_hypotheses, prior_window_deg : int, float
         With a prior, the local minima of the coarse score within ±window of it refined
         beside the prior itself (the chain shifted by one light is ~2-3° away).
@@ -95,9 +106,24 @@ class MatchParams:
         Coarse grid of eye rotations: step, and half-ranges in yaw and pitch. The paper's
         screen (48 x 30 cm at 70 cm) spans ±19° yaw and -16°..+8° pitch; ±35° covers it with
         room for a larger screen or a poor prior.
-    min_matches : int
-        Fewer matched glints than this after the refit is "too_few_glints": a single glint
-        fits any orbit pose through it, two rarely pin the identity.
+    unmatched_cost : float
+        Score of a detection left unmatched. 2 log(A / (2π σ²)) = 18, the log-odds of clutter
+        uniform over a band's ~50 x 300 px against a glint at the noise σ, rounded up to
+        (gate / σ)² = 25: a detection is always better matched inside the gate than not.
+    prior_sigma_deg : float
+        With a prior, each hypothesis also scores its distance from the prior over this, per
+        angle: a saccade turns the eye by up to ~0.5° in the 1 ms between bands, and the chain
+        shifted by one light lies 1.5-3° away.
+    min_margin : float
+        A best hypothesis that beats a rival with other identities by less than this is
+        "ambiguous" and no identity is returned: exp(-ΔS / 2) is their likelihood ratio, and 6
+        asks for 20:1. Measured on 150 cold bands: 4 claimed 0.5 % wrong identities
+        (paper_sim), 6 claimed 0-0.1 %, at the price of refusing 4-6 % of the detections.
+    min_matches, min_matches_prior : int
+        Fewer matched glints than this after the refit is "too_few_glints" (no identities
+        are returned): one glint fits an orbit pose through it exactly, whatever its light,
+        and two rarely pin the identity on a cold start; with a prior, two do (the prior
+        already places each glint within the prior gate).
     """
 
     gate_px: float = 2.5
@@ -105,17 +131,21 @@ class MatchParams:
     prior_gate_px: float = 5.0
     noise_px: float = 0.5
     missing_cost: float = 4.0
+    unmatched_cost: float = 25.0
+    prior_sigma_deg: float = 0.5
+    min_margin: float = 6.0
     band_margin_px: float = 2.0
     model: str = "orbit"
     max_iter: int = 8
     hypotheses: int = 6
     prior_hypotheses: int = 3
-    shift_sources: int = 2
+    shift_sources: int = 1
     prior_window_deg: float = 3.0
     grid_step_deg: float = 1.0
     grid_yaw_deg: float = 35.0
     grid_pitch_deg: float = 35.0
     min_matches: int = 3
+    min_matches_prior: int = 2
 
     def __post_init__(self):
         if self.model not in ("orbit", "center"):
@@ -123,8 +153,8 @@ class MatchParams:
         for name in ("gate_px", "coarse_gate_px", "prior_gate_px", "noise_px", "grid_step_deg"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
-        if self.max_iter < 1 or self.hypotheses < 1 or self.min_matches < 1:
-            raise ValueError("max_iter, hypotheses and min_matches must be >= 1")
+        if min(self.max_iter, self.hypotheses, self.min_matches, self.min_matches_prior) < 1:
+            raise ValueError("max_iter, hypotheses and min_matches(_prior) must be >= 1")
 
 
 @dataclass(frozen=True, slots=True)
@@ -152,7 +182,8 @@ class GlintMatch:
     iterations : int
         Match-refit rounds of the chosen hypothesis.
     reason : str
-        ``"ok"``, ``"too_few_glints"``, ``"no_hypothesis"`` or ``"fit_failed"``.
+        ``"ok"``, or why no identity is returned: ``"too_few_glints"``, ``"ambiguous"`` (a
+        rival hypothesis within ``min_margin``), ``"no_hypothesis"`` or ``"fit_failed"``.
     """
 
     light_index: np.ndarray
@@ -209,13 +240,11 @@ class GlintMatcher:
         self.group = np.asarray(setup.lights.group_index)
         self.problem = FitProblem(setup.camera, self.lights_world_m, eye.cornea_radius_m,
                                   eye.rotation_center_m, eye.cornea_offset_m)
-        step = math.radians(params.grid_step_deg)
         yaw = np.arange(-params.grid_yaw_deg, params.grid_yaw_deg + 1e-9, params.grid_step_deg)
         pitch = np.arange(-params.grid_pitch_deg, params.grid_pitch_deg + 1e-9,
                           params.grid_step_deg)
         Y, P = np.meshgrid(np.radians(yaw), np.radians(pitch), indexing="ij")
         self._grid_shape = Y.shape
-        self._grid_step = step
         self.grid_angles_rad = np.stack([Y.ravel(), P.ravel()], axis=-1)
         self.grid_glints_px, self.grid_visible = self.predict(self.grid_angles_rad)
 
@@ -298,6 +327,7 @@ class GlintMatcher:
         if k == 0:
             return self._failure(0, TOO_FEW_GLINTS)
         p = self.params
+        from_prior = None
         if prior_angles_rad is not None:
             prior = np.asarray(prior_angles_rad, dtype=np.float64).reshape(2)
             if not np.isfinite(prior).all():
@@ -308,33 +338,56 @@ class GlintMatcher:
                 p.prior_window_deg)
             starts = [prior] + (self._coarse(g, lo, hi, near, p.prior_hypotheses)
                                 if p.prior_hypotheses else [])
-            result = self._choose(g, lo, hi, starts, p.prior_gate_px)
-            if result is not None and result.ok and result.light_index.size and \
-                    (result.light_index >= 0).sum() >= 0.5 * k:
-                return result
+            from_prior = self._choose(g, lo, hi, starts, p.prior_gate_px, p.min_matches_prior,
+                                      prior)
+            if from_prior is not None and from_prior.ok:
+                n = int(from_prior.matched.sum())
+                if n >= p.min_matches or n >= 0.5 * k:
+                    return from_prior
+        # No prior, or one that explains too little (stale after a blink or a saccade, or a
+        # band with few glints among clutter): the coarse search, and the better of the two.
         starts = self._coarse(g, lo, hi, None, p.hypotheses)
-        result = self._choose(g, lo, hi, starts, p.coarse_gate_px)
-        return result if result is not None else self._failure(k, NO_HYPOTHESIS)
+        cold = self._choose(g, lo, hi, starts, p.coarse_gate_px, p.min_matches)
+        results = [r for r in (from_prior, cold) if r is not None]
+        good = [r for r in results if r.ok]
+        if good:
+            return min(good, key=lambda r: r.score)
+        return results[-1] if results else self._failure(k, NO_HYPOTHESIS)
 
-    def _choose(self, g, lo, hi, starts, first_gate) -> GlintMatch | None:
-        """Refine the starting poses, keep the lowest score; None when none matches anything."""
+    def _choose(self, g, lo, hi, starts, first_gate, min_matches, prior=None) -> GlintMatch | None:
+        """Refine the starting poses, keep the lowest score; None when none matches anything.
+        With a prior, each hypothesis' score also pays for its distance from it."""
         if not starts:
             return None
-        refined = self._refine(g, lo, hi, np.array([self._x_from_angles(a) for a in starts]),
-                               first_gate)
+        X = np.array([self._x_from_angles(a) for a in starts])
+        # The arc's chain shifted by a light or two along itself is the classic wrong basin
+        # (the glints are near-evenly spaced): those identities are tried explicitly, as
+        # starts whose first assignment is shifted. With a prior, shifted from the prior's
+        # own assignment, in the same batch; cold, from the leading refined hypotheses.
+        steps = (-2, -1, 1, 2)
+        first = None
+        if prior is not None:
+            pred, cand, _ = self._candidates(X[:1], lo, hi)
+            base, _ = self._assign(g, pred[0], cand[0], first_gate)
+            shifted = [a for a in (self._shift(base, s) for s in steps) if (a >= 0).any()]
+            first = [None] * len(starts) + shifted
+            X = np.concatenate([X, np.repeat(X[:1], len(shifted), axis=0)])
+        refined = self._refine(g, lo, hi, X, first_gate, first)
         if not refined:
             return None
-        refined.sort(key=lambda h: h.score)
-        # The arc's chain shifted by a light or two along itself is the classic wrong basin
-        # (the glints are near-evenly spaced): test those identities explicitly from the
-        # leading hypotheses, starting from a fit of the shifted assignment.
-        shifted = [(h, self._shift(h.assign, step)) for h in refined[: self.params.shift_sources]
-                   for step in (-2, -1, 1, 2)]
-        shifted = [(h, a) for h, a in shifted if (a >= 0).any()]
-        if shifted:
-            refined += self._refine(g, lo, hi, np.array([h.x for h, _ in shifted]),
-                                    self.params.gate_px, [a for _, a in shifted])
+        if prior is None:
             refined.sort(key=lambda h: h.score)
+            shifted = [(h, self._shift(h.assign, s))
+                       for h in refined[: self.params.shift_sources] for s in steps]
+            shifted = [(h, a) for h, a in shifted if (a >= 0).any()]
+            if shifted:
+                refined += self._refine(g, lo, hi, np.array([h.x for h, _ in shifted]),
+                                        self.params.gate_px, [a for _, a in shifted])
+        else:
+            sigma = math.radians(self.params.prior_sigma_deg)
+            refined = [replace(h, score=h.score + float(
+                (((self._angles_center(h.x)[0] - prior) / sigma) ** 2).sum())) for h in refined]
+        refined.sort(key=lambda h: h.score)
         best = refined[0]
         # Runner-up: the best hypothesis whose identities differ from the winner's.
         margin = math.inf
@@ -342,7 +395,7 @@ class GlintMatcher:
             if not np.array_equal(h.assign, best.assign):
                 margin = h.score - best.score
                 break
-        return self._result(g, best, margin)
+        return self._result(g, best, margin, min_matches)
 
     def _shift(self, assign, step: int) -> np.ndarray:
         """Every matched light moved ``step`` places along its own arc (-1 where that leaves
@@ -390,9 +443,10 @@ class GlintMatcher:
         # so distances are scored against the coarse gate: a detection at the coarse gate
         # costs as much as an unmatched one.
         near = np.minimum(np.minimum.reduceat(d2, first, axis=0), gate2)  # (nodes used, k)
-        inside = (v[node, light] >= lo + p.band_margin_px) & (v[node, light] <= hi - p.band_margin_px)
+        vc = v[node, light]
+        inside = (vc >= lo + p.band_margin_px) & (vc <= hi - p.band_margin_px)
         missing = np.add.reduceat((inside & (d2.min(axis=1) > gate2)).astype(np.float64), first)
-        unmatched_cost = p.gate_px ** 2 / p.noise_px ** 2
+        unmatched_cost = p.unmatched_cost
         score = np.full(n_nodes, np.inf)
         score[used] = near.sum(axis=1) / gate2 * unmatched_cost + p.missing_cost * missing
         score = score.reshape(self._grid_shape)
@@ -435,12 +489,17 @@ class GlintMatcher:
     def _fit(self, g, assigns, X):
         """Refit every hypothesis from X (H, p) with its matched detections, in one batched
         call; returns (X, ok (H,))."""
-        n = self.lights_world_m.shape[0]
-        glints = np.full((len(assigns), n, 2), np.nan)
+        # Only the lights matched in some hypothesis enter the fit (a fraction of the rig:
+        # the fit's cost is the projection of every light it carries).
+        used = np.unique(np.concatenate([a[a >= 0] for a in assigns]))
+        slot = np.full(self.lights_world_m.shape[0], -1)
+        slot[used] = np.arange(used.size)
+        glints = np.full((len(assigns), used.size, 2), np.nan)
         for h, assign in enumerate(assigns):
             m = assign >= 0
-            glints[h, assign[m]] = g[m]
-        fit = fit_cornea(self.problem, glints, None, X, model=self.params.model)
+            glints[h, slot[assign[m]]] = g[m]
+        problem = replace(self.problem, lights_world_m=self.lights_world_m[used])
+        fit = fit_cornea(problem, glints, None, X, model=self.params.model)
         x_new = fit.angles_rad if self.params.model == "orbit" else fit.center_m
         ok = fit.ok & np.isfinite(x_new).all(axis=1)
         return np.where(ok[:, None], x_new, X), ok
@@ -469,12 +528,13 @@ class GlintMatcher:
             idx = np.flatnonzero(active)
             if idx.size == 0:
                 break
-            if it > 0 or first_assign is None:
+            given = it == 0 and first_assign is not None
+            if not given or any(first_assign[h] is None for h in idx):
                 pred, cand, _ = self._candidates(X[idx], lo, hi)
             to_fit, assigns = [], []
             seen = {}
             for a, h in enumerate(idx):
-                if it == 0 and first_assign is not None:
+                if given and first_assign[h] is not None:
                     assign = first_assign[h]
                 else:
                     assign, _ = self._assign(g, pred[a], cand[a], gate[h])
@@ -521,7 +581,7 @@ class GlintMatcher:
             detected = np.zeros(self.lights_world_m.shape[0], dtype=bool)
             detected[assign[matched]] = True
             score = (np.sum(dist[matched] ** 2) / sigma2
-                     + (~matched).sum() * p.gate_px ** 2 / sigma2
+                     + (~matched).sum() * p.unmatched_cost
                      + p.missing_cost * (inside[a] & ~detected).sum())
             out.append(_Hypothesis(X[a].copy(), assign, dist, pred[a], cand[a], float(score),
                                    int(iters[keep[a]]), bool(ok[a])))
@@ -551,39 +611,44 @@ class GlintMatcher:
 
     # ----------------------------------------------------------------------- result
 
-    def _result(self, g, h: _Hypothesis, margin: float) -> GlintMatch:
+    def _result(self, g, h: _Hypothesis, margin: float, min_matches: int) -> GlintMatch:
         p = self.params
         k = g.shape[0]
         matched = h.assign >= 0
         n_matched = int(matched.sum())
-        angles, center = self._angles_center(h.x)
-        rms = float(np.sqrt(np.mean(h.residual[matched] ** 2))) if n_matched else math.nan
         if not h.fit_ok:
             reason = FIT_FAILED
-        elif n_matched < p.min_matches:
+        elif n_matched < min_matches:
             reason = TOO_FEW_GLINTS
+        elif margin < p.min_margin:
+            reason = AMBIGUOUS
         else:
             reason = OK
+        if reason != OK:
+            # No identity is claimed from a fit that cannot be trusted (STYLE: a result with a
+            # reason, not a guess).
+            return GlintMatch(np.full(k, -1, dtype=np.int64), np.zeros(k), np.full(k, np.nan),
+                              np.full(3, np.nan), np.full(2, np.nan), math.nan, h.score, margin,
+                              h.iterations, reason)
+        angles, center = self._angles_center(h.x)
+        rms = float(np.sqrt(np.mean(h.residual[matched] ** 2)))
         # Confidence: residual, margin to the second-best assignment, hypothesis margin.
         conf = np.zeros(k)
-        if n_matched:
-            lights = np.flatnonzero(h.cand)
-            d_all = np.sqrt(((g[:, None, :] - h.pred[None, lights, :]) ** 2).sum(-1))  # (k, m)
-            det = np.flatnonzero(matched)
-            own = np.searchsorted(lights, h.assign[det])
-            r = h.residual[det]
-            other_cand = d_all[det].copy()
-            other_cand[np.arange(det.size), own] = np.inf
-            other_det = d_all[:, own].copy()  # other detections near the matched prediction
-            other_det[det, np.arange(det.size)] = np.inf
-            d2 = np.minimum(other_cand.min(axis=1, initial=np.inf),
-                            other_det.min(axis=0, initial=np.inf))
-            c_res = np.clip(1.0 - r / p.gate_px, 0.0, 1.0)
-            c_alt = np.clip((d2 - r) / p.gate_px, 0.0, 1.0)
-            c_hyp = 1.0 if math.isinf(margin) else math.tanh(max(margin, 0.0) / 4.0)
-            conf[det] = c_res * c_alt * c_hyp
-        if reason != OK:
-            conf[:] = 0.0
+        lights = np.flatnonzero(h.cand)
+        d_all = np.sqrt(((g[:, None, :] - h.pred[None, lights, :]) ** 2).sum(-1))  # (k, m)
+        det = np.flatnonzero(matched)
+        own = np.searchsorted(lights, h.assign[det])
+        r = h.residual[det]
+        other_cand = d_all[det].copy()  # other candidates near the detection
+        other_cand[np.arange(det.size), own] = np.inf
+        other_det = d_all[:, own].copy()  # other detections near the matched prediction
+        other_det[det, np.arange(det.size)] = np.inf
+        d2 = np.minimum(other_cand.min(axis=1, initial=np.inf),
+                        other_det.min(axis=0, initial=np.inf))
+        c_res = np.clip(1.0 - r / p.gate_px, 0.0, 1.0)
+        c_alt = np.clip((d2 - r) / p.gate_px, 0.0, 1.0)
+        c_hyp = 1.0 if math.isinf(margin) else math.tanh(max(margin, 0.0) / 4.0)
+        conf[det] = c_res * c_alt * c_hyp
         return GlintMatch(h.assign.copy(), conf, h.residual.copy(), center, angles, rms,
                           h.score, margin, h.iterations, reason)
 
