@@ -95,6 +95,49 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+def _progress_bar(total: int, unit: str, desc: str):
+    """A tqdm bar on stderr with time left, as a ``progress(done, total)`` callback."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=total, unit=unit, desc=desc, dynamic_ncols=True, disable=None)
+
+    def update(done: int, total_now: int, *_):
+        bar.total = total_now
+        bar.n = done
+        bar.refresh()
+
+    return bar, update
+
+
+def cmd_render(args) -> int:
+    from estimator.scene import load_scene
+    from scet_render.dataset import render_dataset
+
+    setup = load_scene(args.scene)
+    bar, update = _progress_bar(args.frames, "frame", f"render {setup.name}")
+    try:
+        summary = render_dataset(setup, args.out, frames=args.frames, spp=args.spp,
+                                 trajectory=args.trajectory, seed=args.seed, variant=args.variant,
+                                 cornea=args.cornea, progress=update)
+    finally:
+        bar.close()
+    print(f"dataset {summary.path}: {len(summary.frames_rendered)} frames rendered, "
+          f"{len(summary.frames_skipped)} already complete")
+    return 0
+
+
+def cmd_export_mitsuba(args) -> int:
+    from estimator.scene import load_scene
+    from scet_render.scene import SceneOptions, export_mitsuba
+
+    setup = load_scene(args.scene)
+    options = SceneOptions(channels="grey", cornea=args.cornea)
+    path = export_mitsuba(setup, args.out, options, yaw_rad=np.radians(args.yaw_deg),
+                          pitch_rad=np.radians(args.pitch_deg), spp=args.spp)
+    print(f"Mitsuba scene written to {path} (render it with: mitsuba {path})")
+    return 0
+
+
 def band_glint_counts(setup, obs) -> list[dict]:
     """For each visible band of frame 0: the rows it dominates and how many glints of each
     target land there (which limits the samples one band can give)."""
@@ -175,6 +218,27 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", type=Path, required=True, help="output file, .npz or .csv")
     p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("render", help="render a labelled dataset of banded frames with Mitsuba 3")
+    p.add_argument("scene", nargs="?", help=scene_help)
+    p.add_argument("--frames", type=int, required=True, help="number of frames")
+    p.add_argument("--out", type=Path, required=True, help="dataset folder (resumed if interrupted)")
+    p.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
+    p.add_argument("--trajectory", choices=("fixations", "saccades", "grid"), default="fixations")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb when libLLVM >= 16 is found, "
+                                     "else scalar_rgb)")
+    p.add_argument("--cornea", choices=("dielectric", "conductor"), default="dielectric")
+    p.set_defaults(func=cmd_render)
+
+    p = sub.add_parser("export-mitsuba", help="write a Mitsuba XML scene (+ meshes) of a scene file")
+    p.add_argument("scene", nargs="?", help=scene_help)
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--yaw-deg", type=float, default=0.0, help="eye yaw (Fick, degrees, + toward +x)")
+    p.add_argument("--pitch-deg", type=float, default=0.0, help="eye pitch (Fick, degrees, + up)")
+    p.add_argument("--spp", type=int, default=64)
+    p.add_argument("--cornea", choices=("dielectric", "conductor"), default="dielectric")
+    p.set_defaults(func=cmd_export_mitsuba)
 
     p = sub.add_parser("demo", help="the main job on a scene: band layout and glint statistics")
     p.add_argument("scene", nargs="?", help=scene_help)

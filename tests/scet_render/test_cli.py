@@ -1,6 +1,7 @@
 """The ``scet`` command line, run in-process."""
 
 import numpy as np
+import pytest
 
 from scet_render.cli import main
 from scet_render.simulate import load_observations
@@ -53,3 +54,20 @@ def test_demo_runs_on_default_scene(capsys, tmp_path):
     out = capsys.readouterr().out
     assert "scene paper_sim" in out and "visible glints per target" in out
     assert (tmp_path / "bands.png").exists() and (tmp_path / "glints.npz").exists()
+
+
+def test_export_mitsuba_writes_a_scene_mitsuba_loads(capsys, tmp_path):
+    mi = pytest.importorskip("mitsuba")
+    from scet_render.backend import activate
+
+    activate()
+    assert main(["export-mitsuba", "paper_sim", "--out", str(tmp_path), "--yaw-deg", "5", "--spp", "4"]) == 0
+    xml = tmp_path / "scene.xml"
+    assert xml.exists()
+    scene = mi.load_file(str(xml))
+    assert list(scene.sensors()[0].film().size()) == [640, 480]
+
+
+def test_render_rejects_bad_arguments_before_rendering(capsys, tmp_path):
+    assert main(["render", "paper_sim", "--frames", "0", "--out", str(tmp_path / "d")]) == 2
+    assert "frames" in capsys.readouterr().err
