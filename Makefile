@@ -34,6 +34,9 @@ test-slow: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_projection.py
+	$(PY) benchmarks/bench_gaze.py
+	$(PY) benchmarks/bench_glints.py
+	$(PY) benchmarks/bench_render.py
 
 clean:
 	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis
