@@ -138,6 +138,78 @@ def cmd_export_mitsuba(args) -> int:
     return 0
 
 
+def cmd_calibrate(args) -> int:
+    from estimator.scene import load_scene
+    from estimator.tracker import calibrate_from_folder, save_calibration
+
+    setup = load_scene(args.scene)
+    cal = calibrate_from_folder(args.dir, setup)
+    path = save_calibration(cal, args.out)
+    print(f"calibration written to {path}: r_c = {cal.cornea_radius_m * 1e3:.3f} mm")
+    return 0
+
+
+def cmd_track(args) -> int:
+    from estimator.scene import load_scene
+    from estimator.tracker import load_calibration, track_folder
+
+    setup = load_scene(args.scene)
+    cal = load_calibration(args.calibration)
+    bar, update = _progress_bar(0, "frame", "track")
+    try:
+        summary = track_folder(args.dir, setup, cal, args.out, method=args.method, progress=update)
+    finally:
+        bar.close()
+    print(f"{len(summary.samples)} gaze samples from {summary.frames} frames "
+          f"({summary.n_ok} estimated) written to {summary.path}")
+    return 0
+
+
+def cmd_validate(args) -> int:
+    from scet_render.validate import run_validation, table_markdown
+
+    bars = {}
+
+    def progress(stage, done, total):
+        if stage not in bars:
+            for bar, _ in bars.values():
+                bar.close()
+            bars[stage] = _progress_bar(total, "step", stage)
+        bars[stage][1](done, total)
+
+    try:
+        result = run_validation(args.scene, quick=args.quick, out_dir=args.out, seed=args.seed,
+                                progress=progress, report_dir=args.report_dir)
+    finally:
+        for bar, _ in bars.values():
+            bar.close()
+    print(table_markdown(result.rows))
+    print(f"glint identities right: {100 * result.identity_rate:.2f} % of {result.n_identified}; "
+          f"rendered feature noise {result.feature_noise_px:.3f} px RMS")
+    print("stage times: " + ", ".join(f"{k} {v:.1f} s" for k, v in result.timings_s.items()))
+    print(f"report written to {result.report}")
+    return 0
+
+
+def cmd_reproduce(args) -> int:
+    from scet_render.reproduce import run_reproduction
+
+    bars = {}
+
+    def progress(done, total, label=""):
+        bar = bars.setdefault("all", _progress_bar(total, "step", "reproduce"))
+        bar[0].set_postfix_str(str(label)[:40], refresh=False)
+        bar[1](done, total)
+
+    try:
+        path = run_reproduction(args.out, quick=args.quick, seed=args.seed, progress=progress)
+    finally:
+        for bar, _ in bars.values():
+            bar.close()
+    print(f"report written to {path}")
+    return 0
+
+
 def band_glint_counts(setup, obs) -> list[dict]:
     """For each visible band of frame 0: the rows it dominates and how many glints of each
     target land there (which limits the samples one band can give)."""
@@ -240,7 +312,36 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cornea", choices=("dielectric", "conductor"), default="dielectric")
     p.set_defaults(func=cmd_export_mitsuba)
 
-    p = sub.add_parser("demo", help="the main job on a scene: band layout and glint statistics")
+    p = sub.add_parser("calibrate", help="calibrate from a folder of single-pulse calibration frames")
+    p.add_argument("dir", type=Path, help="folder of frames (frames/NNNNNN.png, labels.jsonl, timing)")
+    p.add_argument("--scene", help=scene_help)
+    p.add_argument("--out", type=Path, required=True, help="calibration file (JSON)")
+    p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("track", help="track a folder of banded frames: one gaze sample per lit band")
+    p.add_argument("dir", type=Path, help="folder of frames with a timing sidecar (or a rendered dataset)")
+    p.add_argument("--scene", help=scene_help)
+    p.add_argument("--calibration", type=Path, required=True, help="calibration file from scet calibrate")
+    p.add_argument("--method", choices=("polynomial", "geometric"), default="polynomial")
+    p.add_argument("--out", type=Path, required=True, help="samples CSV")
+    p.set_defaults(func=cmd_track)
+
+    p = sub.add_parser("validate", help="the main job: render, calibrate, track and compare with "
+                                        "ground truth and with the feature-level simulation")
+    p.add_argument("scene", nargs="?", help=scene_help)
+    p.add_argument("--quick", action="store_true", help="reduced size: under 3 minutes on 2 cores")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, default=Path("out/validate"), help="work folder for renders")
+    p.add_argument("--report-dir", type=Path, default=Path("reports"), help="where validation.md goes")
+    p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("reproduce", help="reproduce the paper's Section 3 side by side with ours")
+    p.add_argument("--quick", action="store_true", help="fewer trials: under 2 minutes on 2 cores")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", type=Path, default=Path("reports"), help="report folder (default reports/)")
+    p.set_defaults(func=cmd_reproduce)
+
+    p = sub.add_parser("demo", help="feature-level summary of a scene: band layout and glint statistics")
     p.add_argument("scene", nargs="?", help=scene_help)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")

@@ -71,3 +71,12 @@ def test_export_mitsuba_writes_a_scene_mitsuba_loads(capsys, tmp_path):
 def test_render_rejects_bad_arguments_before_rendering(capsys, tmp_path):
     assert main(["render", "paper_sim", "--frames", "0", "--out", str(tmp_path / "d")]) == 2
     assert "frames" in capsys.readouterr().err
+
+
+def test_track_and_calibrate_name_missing_inputs(capsys, tmp_path):
+    assert main(["track", str(tmp_path / "nowhere"), "--calibration", str(tmp_path / "cal.json"),
+                 "--out", str(tmp_path / "s.csv")]) == 2
+    assert "cal.json" in capsys.readouterr().err
+    assert main(["calibrate", str(tmp_path / "nowhere"), "--out", str(tmp_path / "cal.json")]) == 2
+    assert "nowhere" in capsys.readouterr().err
+    assert not (tmp_path / "s.csv").exists() and not (tmp_path / "cal.json").exists()

@@ -1,0 +1,200 @@
+"""The tracker on images: stream contract, folder readers, bad input (no rendering here).
+
+Frames are drawn analytically: a dark eye-like background with Gaussian glints at the
+closed-form glint positions, each row scaled by the pulse weights of its band, so the banding,
+detection, matching and gaze code all run for real.
+"""
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from estimator.banding import band_layout, row_pulse_weights
+from estimator.calibration import Calibration, fit_gaze_mapping
+from estimator.gaze import fit_cornea_centers
+from estimator.scene import load_scene
+from estimator.tracker import (INTERNAL_ERROR, SATURATED_FRAME, UNREADABLE_FRAME,
+                               WRONG_FRAME_SIZE, Tracker, TrackerInputError, load_calibration,
+                               read_samples_csv, read_timing, save_calibration, timing_document,
+                               track_folder)
+from scet_render.simulate import ground_truth_glints
+
+DT = None
+
+
+@pytest.fixture(scope="module")
+def setup():
+    return load_scene("paper_sim")
+
+
+@pytest.fixture(scope="module")
+def calibration(setup):
+    targets = setup.screen.grid(5, 5, margin=0.0)
+    yaw, pitch = setup.eye.angles_toward(targets)
+    g, vis, _ = ground_truth_glints(setup, yaw, pitch)
+    g = np.where(vis[..., None], g, np.nan)
+    cal = Calibration.ground_truth(setup)
+    c = fit_cornea_centers(setup, cal, g).center_m
+    return cal.with_mappings(eq1_25=fit_gaze_mapping(c, targets, "eq1", degenerate="min_norm"))
+
+
+def draw_frame(setup, frame, yaw, pitch, rng):
+    """A 10-bit banded frame of the eye at fixed (yaw, pitch)."""
+    H, W = setup.camera.height_px, setup.camera.width_px
+    j, _, w = row_pulse_weights(setup.sensor, setup.strobe, frame)
+    g, vis, _ = ground_truth_glints(setup, yaw, pitch)
+    yy, xx = np.mgrid[0:H, 0:W]
+    img = np.zeros((H, W))
+    for (u, v), ok in zip(g, vis):
+        if ok:
+            img += 600.0 * np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / (2 * 1.2 ** 2))
+    img = img * w.sum(axis=1)[:, None] + 60.0 * w.sum(axis=1)[:, None] + 16.0
+    img += rng.normal(0.0, 2.0, img.shape)
+    return np.clip(np.rint(img), 0, 1023).astype(np.uint16)
+
+
+@pytest.fixture(scope="module")
+def frames(setup):
+    rng = np.random.default_rng(1)
+    yaw, pitch = setup.eye.angles_toward(setup.screen.grid(1, 1))
+    return [draw_frame(setup, f, float(yaw[0]), float(pitch[0]), rng) for f in range(3)], \
+        setup.screen.grid(1, 1)[0]
+
+
+def test_one_sample_per_visible_band_stamped_with_the_strobe_instant(setup, calibration, frames):
+    tr = Tracker(setup, calibration, "polynomial")
+    imgs, target = frames
+    for f, img in enumerate(imgs):
+        out = tr.process(img, f)
+        bands = [b for b in band_layout(setup.sensor, setup.strobe, f) if b.visible]
+        assert [s.strobe_index for s in out] == [b.pulse_index for b in bands]
+        # s_j + Δs / 2 from the banding model, not the frame time f Δt.
+        want = [b.strobe_time_s + 0.5 * setup.strobe.pulse_s for b in bands]
+        assert np.allclose([s.time_s for s in out], want, atol=1e-12)
+        for s in out:
+            assert s.ok or (np.isnan(s.screen_xy_m).all() and s.reason != "ok")
+        ok = [s for s in out if s.ok]
+        assert ok, "a band crossing the glint arc gives a sample"
+        err_m = np.linalg.norm(np.array([s.screen_xy_m for s in ok]) - target[:2], axis=1)
+        # 1 cm at 70 cm is 0.8 deg: noiseless glints, the Eq. (1) mapping is exact to ~1 mm.
+        assert err_m.max() < 0.01
+
+
+def test_frame_start_shifts_sample_times(setup, calibration, frames):
+    tr = Tracker(setup, calibration)
+    a = tr.process(frames[0][0], 0)
+    b = Tracker(setup, calibration).process(frames[0][0], 0, frame_start_s=0.5)
+    assert np.allclose([s.time_s + 0.5 for s in a], [s.time_s for s in b])
+
+
+@pytest.mark.parametrize("frame, reason", [
+    (None, UNREADABLE_FRAME),
+    (np.zeros((10, 10), np.uint16), WRONG_FRAME_SIZE),
+    ("saturated", SATURATED_FRAME),
+])
+def test_bad_frames_give_nan_samples_with_a_reason(setup, calibration, frame, reason):
+    if isinstance(frame, str):
+        frame = np.full((setup.camera.height_px, setup.camera.width_px), 1023, np.uint16)
+    out = Tracker(setup, calibration).process(frame, 0)
+    assert out and all(s.reason == reason and np.isnan(s.screen_xy_m).all() for s in out)
+
+
+def test_no_glints_gives_nan_samples(setup, calibration):
+    img = np.full((setup.camera.height_px, setup.camera.width_px), 40, np.uint16)
+    out = Tracker(setup, calibration).process(img, 0)
+    assert out and all(not s.ok and s.reason.endswith("too_few_glints") for s in out)
+
+
+def test_an_exception_inside_a_frame_does_not_stop_the_stream(setup, calibration, frames,
+                                                             monkeypatch, caplog):
+    tr = Tracker(setup, calibration)
+
+    def boom(*a, **k):
+        raise RuntimeError("detector exploded")
+
+    monkeypatch.setattr("estimator.tracker.detect_glints", boom)
+    out = tr.process(frames[0][0], 0)
+    assert out and all(s.reason == f"{INTERNAL_ERROR}:RuntimeError" for s in out)
+    assert "detector exploded" in caplog.text
+    monkeypatch.undo()
+    assert any(s.ok for s in tr.process(frames[0][1], 1))
+
+
+# --------------------------------------------------------------------------- folders
+
+
+def write_folder(path, setup, imgs, timing=True):
+    (path / "frames").mkdir(parents=True)
+    for f, img in enumerate(imgs):
+        cv2.imwrite(str(path / "frames" / f"{f:06d}.png"), img)
+    if timing:
+        dt = setup.sensor.frame_period_s
+        (path / "timing.json").write_text(timing_document({f: f * dt for f in range(len(imgs))}))
+    return path
+
+
+def test_track_folder_writes_a_versioned_csv(tmp_path, setup, calibration, frames):
+    folder = write_folder(tmp_path / "run", setup, frames[0])
+    out = tmp_path / "samples.csv"
+    summary = track_folder(folder, setup, calibration, out)
+    rows = read_samples_csv(out)
+    assert len(rows) == len(summary.samples) and summary.n_ok > 0
+    assert {r["reason"] for r in rows} >= {"ok"}
+    assert not (tmp_path / "samples.csv.partial").exists()
+
+
+def test_corrupt_and_truncated_frames_become_nan_samples(tmp_path, setup, calibration, frames):
+    folder = write_folder(tmp_path / "run", setup, frames[0])
+    p1 = folder / "frames" / "000001.png"
+    p1.write_bytes(p1.read_bytes()[:200])  # truncated
+    (folder / "frames" / "000002.png").write_bytes(b"not a png at all")
+    summary = track_folder(folder, setup, calibration, tmp_path / "s.csv")
+    by_frame = {}
+    for s in summary.samples:
+        by_frame.setdefault(s.frame_index, set()).add(s.reason)
+    assert by_frame[1] == {UNREADABLE_FRAME} and by_frame[2] == {UNREADABLE_FRAME}
+    assert "ok" in by_frame[0]
+
+
+def test_missing_timing_names_the_folder(tmp_path, setup, calibration, frames):
+    folder = write_folder(tmp_path / "run", setup, frames[0], timing=False)
+    with pytest.raises(TrackerInputError, match="timing.json"):
+        track_folder(folder, setup, calibration, tmp_path / "s.csv")
+
+
+@pytest.mark.parametrize("text, key", [
+    ("{", "cannot read JSON"),
+    (json.dumps({"format": "other", "version": 1, "frames": {"0": 0.0}}), "format"),
+    (json.dumps({"format": "scet-timing", "version": 99, "frames": {"0": 0.0}}), "version"),
+    (json.dumps({"format": "scet-timing", "version": 1, "frames": {"x": 0.0}}), "'frames'"),
+    (json.dumps({"format": "scet-timing", "version": 1, "frames": {}}), "'frames'"),
+])
+def test_malformed_timing_names_file_and_key(tmp_path, setup, text, key):
+    (tmp_path / "timing.json").write_text(text)
+    with pytest.raises(TrackerInputError, match=key) as info:
+        read_timing(tmp_path, setup)
+    assert "timing.json" in str(info.value)
+
+
+def test_calibration_file_round_trip_and_bad_files(tmp_path, calibration):
+    path = save_calibration(calibration, tmp_path / "cal.json")
+    back = load_calibration(path)
+    assert back.to_json() == calibration.to_json()
+    (tmp_path / "bad.json").write_text('{"format": "scet-calibration", "version": 7}')
+    with pytest.raises(TrackerInputError, match="bad.json"):
+        load_calibration(tmp_path / "bad.json")
+    with pytest.raises(TrackerInputError, match="missing.json"):
+        load_calibration(tmp_path / "missing.json")
+
+
+def test_a_failed_run_keeps_the_previous_csv(tmp_path, setup, calibration, frames):
+    folder = write_folder(tmp_path / "run", setup, frames[0])
+    out = tmp_path / "samples.csv"
+    track_folder(folder, setup, calibration, out)
+    before = out.read_bytes()
+    (folder / "timing.json").write_text("{broken")
+    with pytest.raises(TrackerInputError):
+        track_folder(folder, setup, calibration, out)
+    assert out.read_bytes() == before
