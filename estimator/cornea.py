@@ -281,6 +281,18 @@ def _lm(model, problem, glints, mask, x0, enough, lo, hi, max_iter):
             g = g * free
         step = -np.linalg.solve(A, g[..., None])[..., 0]
         x_new = np.clip(x[idx] + step, lo, hi)
+        # A step the model cannot evaluate (a singular system's non-finite step, a radius
+        # driven through zero) counts as a rejected step: more damping, same point.
+        usable = np.isfinite(x_new).all(axis=1)
+        if model == "full":
+            usable &= x_new[:, 3] > 0
+        if not usable.all():
+            bad_idx = idx[~usable]
+            lam[bad_idx] *= 10
+            iters[bad_idx] += 1
+            idx, x_new, step, Ji, ri = idx[usable], x_new[usable], step[usable], Ji[usable], ri[usable]
+            if idx.size == 0:
+                continue
         # A Gauss-Newton step this small leaves an error of order its square: take it and stop
         # without paying for another Jacobian.
         tiny = (lam[idx] <= 1e-3) & (np.abs(x_new - x[idx]) <= _GN_STOP * np.maximum(1.0, np.abs(x[idx]))).all(axis=1)
