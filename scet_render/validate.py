@@ -5,19 +5,23 @@
 1. Render single-pulse calibration frames (every visible row collects the same whole pulse,
    so the frame is one instant; :func:`calibration_setup`) with the eye fixating the 5x5
    calibration pattern, and a banded test sequence (fixations on the paper's 24 x 15 grid,
-   :func:`scet_render.dataset.render_dataset`).
-2. Calibrate from the calibration frames and track the test frames with the very same code
-   that runs on the prototype (:mod:`estimator.tracker`), both gaze methods.
+   :func:`scet_render.dataset.render_dataset`) per strobe setting (pulses per frame, i.e. band
+   count; :func:`strobe_setup`): the same trajectory and seed each time.
+2. Calibrate from the calibration frames and track the test frames of every strobe setting
+   with the very same code that runs on the prototype (:mod:`estimator.tracker`) and the same
+   calibration, both gaze methods.
 3. Compare each sample with the ground truth of ``labels.jsonl`` (the true optical axis at the
    strobe instant), check every identified glint's light against the labels' glints, and run
    the feature-level simulator (:func:`scet_render.simulate.simulate_glints`) on the same poses,
-   the same lights and the same calibration, at the feature noise the rendered detections show.
+   the same lights and the same calibration, at the feature noise the rendered detections of
+   that strobe setting show.
 4. Write ``reports/validation.md`` with the table, a banded frame with its detections overlaid
    and error plots.
 
 Quick mode renders at half resolution (320 x 240), 4 spp, with the conductor cornea (exact
-glints at low spp) in about a minute on 2 cores; full mode renders at full resolution with the
-dielectric cornea at 16 spp.
+glints at low spp), 30 test frames at each of 8 and 16 pulses per frame, in about a minute on
+2 cores; full mode renders at full resolution with the dielectric cornea at 16 spp, 90 test
+frames at each of 4, 8 and 16 pulses per frame.
 """
 
 from __future__ import annotations
@@ -59,10 +63,13 @@ class ValidationConfig:
     cornea: str
     frames: int
     calib_grid: tuple = (5, 5)
+    #: Strobe settings (pulses per frame); ``frames`` test frames are rendered for each.
+    pulses_per_frame: tuple = (16,)
 
 
-QUICK = ValidationConfig(scale=2, spp=4, cornea="conductor", frames=60)
-FULL = ValidationConfig(scale=1, spp=16, cornea="dielectric", frames=180)
+QUICK = ValidationConfig(scale=2, spp=4, cornea="conductor", frames=30, pulses_per_frame=(8, 16))
+FULL = ValidationConfig(scale=1, spp=16, cornea="dielectric", frames=90,
+                        pulses_per_frame=(4, 8, 16))
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,17 +101,20 @@ class ValidationResult:
     ----------
     rows : list of ValidationRow
     feature_noise_px : float
-        RMS per-axis error of the rendered detections against the labels (px): the e_f of the
-        matching feature-level simulation (Gaussian).
+        RMS per-axis error of the rendered detections against the labels (px), over all
+        strobe settings.
+    feature_noise_by_ppf : dict
+        pulses per frame -> that setting's RMS per-axis error (px): the e_f of its matching
+        feature-level simulation (Gaussian).
     identity_rate : float
         Share of identified detections whose light is right (within :data:`IDENTITY_RADIUS_PX`
         of that light's ground-truth glint).
     n_identified : int
     calibration : Calibration
     errors_deg : dict
-        (source, method) -> (m,) per-sample errors (NaN = failed).
+        (source, pulses_per_frame, method) -> (m,) per-sample errors (NaN = failed).
     reasons : dict
-        method -> {reason: count}.
+        (pulses_per_frame, method) -> {reason: count}.
     timings_s : dict
         Wall time of each stage.
     report : Path
@@ -120,9 +130,23 @@ class ValidationResult:
     timings_s: dict
     report: Path
     config: ValidationConfig = field(default=QUICK)
+    feature_noise_by_ppf: dict = field(default_factory=dict)
 
-    def row(self, source: str, method: str) -> ValidationRow:
-        return next(r for r in self.rows if r.source == source and r.method == method)
+    def row(self, source: str, method: str, pulses_per_frame: int | None = None) -> ValidationRow:
+        """The row of ``source`` and ``method`` at ``pulses_per_frame`` (may be left out when
+        only one strobe setting was run)."""
+        found = [r for r in self.rows if r.source == source and r.method == method
+                 and (pulses_per_frame is None or r.pulses_per_frame == pulses_per_frame)]
+        if len(found) != 1:
+            raise KeyError(f"{len(found)} rows for {(source, method, pulses_per_frame)}")
+        return found[0]
+
+    def errors(self, source: str, method: str, pulses_per_frame: int | None = None) -> np.ndarray:
+        """Per-sample errors of ``source`` and ``method``: of one strobe setting, or of all
+        of them concatenated."""
+        return np.concatenate([e for (s, p, m), e in sorted(self.errors_deg.items())
+                               if s == source and m == method
+                               and (pulses_per_frame is None or p == pulses_per_frame)])
 
 
 # --------------------------------------------------------------------------- setups
@@ -167,6 +191,28 @@ def calibration_setup(setup: Setup, exposure_share: float = 0.9) -> Setup:
     phase = -0.5 * slack - 0.5 * pulse  # centre of [span - Δe, 0] relative to t0_f
     strobe = replace(setup.strobe, pulses_per_frame=1, pulse_s=pulse, period_s=dt, phase_s=phase)
     return replace(setup, sensor=replace(sensor, exposure_s=exposure), strobe=strobe)
+
+
+def strobe_setup(setup: Setup, pulses_per_frame: int) -> Setup:
+    """The setup strobed ``pulses_per_frame`` times a frame: the period locked to the frame
+    (Δ_clk = Δt / P), the setup's pulse width kept and the exposure of Eq. (8), Δe = Δ_clk - Δs,
+    so the bands tile the frame (:func:`estimator.banding.plan_strobe`). The setup's own pulse
+    count returns the setup unchanged (its exposure as configured)."""
+    from estimator.banding import plan_strobe
+
+    if pulses_per_frame == setup.strobe.pulses_per_frame:
+        return setup
+    if pulses_per_frame < 1:
+        raise ValueError(f"pulses_per_frame must be >= 1, got {pulses_per_frame}")
+    sensor = setup.sensor
+    # plan_strobe asks for visible bands: ceil(b S / N) = P for b just under P N / S.
+    plan = plan_strobe(sensor, pulses_per_frame * sensor.visible_lines / sensor.total_lines
+                       * (1 - 1e-9), pulse_s=setup.strobe.pulse_s)
+    if plan.pulses_per_frame != pulses_per_frame:  # pragma: no cover - rounding guard
+        raise RuntimeError(f"planned {plan.pulses_per_frame} pulses, wanted {pulses_per_frame}")
+    strobe = replace(setup.strobe, pulses_per_frame=plan.pulses_per_frame,
+                     pulse_s=plan.pulse_s, period_s=plan.period_s)
+    return replace(setup, sensor=replace(sensor, exposure_s=plan.exposure_s), strobe=strobe)
 
 
 # --------------------------------------------------------------------------- rendering
@@ -367,9 +413,13 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
     t = time.perf_counter()
     cal_dir = render_calibration(setup, out / "calibration", spp=cfg.spp, cornea=cfg.cornea,
                                  seed=seed, grid=cfg.calib_grid, progress=stage("calibration"))
-    test_dir = out / "test"
-    render_dataset(setup, test_dir, frames=cfg.frames, spp=cfg.spp, trajectory="fixations",
-                   seed=seed, cornea=cfg.cornea, progress=stage("test"))
+    settings = {}  # pulses per frame -> (setup, test folder)
+    for ppf in cfg.pulses_per_frame:
+        sset = strobe_setup(setup, ppf)
+        test_dir = out / f"test_p{ppf}"
+        render_dataset(sset, test_dir, frames=cfg.frames, spp=cfg.spp, trajectory="fixations",
+                       seed=seed, cornea=cfg.cornea, progress=stage(f"test {ppf} pulses/frame"))
+        settings[ppf] = (sset, test_dir)
     timings["render"] = time.perf_counter() - t
 
     t = time.perf_counter()
@@ -378,52 +428,61 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
     timings["calibrate"] = time.perf_counter() - t
     mapping = sorted(k for k in calibration.mappings if k.startswith("eq1"))[-1]
 
-    labels = list(iter_labels(test_dir))
-    by_key = {(lb.frame, lb.strobe): lb for lb in labels}
-    rows, errors, reasons = [], {}, {}
-    ppf = setup.strobe.pulses_per_frame
+    rows, errors, reasons, noise_by_ppf, tracked = [], {}, {}, {}, {}
     correct = total = 0
     resid_all = []
-    tracked = {}
-    for method in ("polynomial", "geometric"):
+    timings["track"] = timings["simulate"] = 0.0
+    for ppf, (sset, test_dir) in settings.items():
+        labels = list(iter_labels(test_dir))
+        by_key = {(lb.frame, lb.strobe): lb for lb in labels}
+        resid_p = []
+        for method in ("polynomial", "geometric"):
+            t = time.perf_counter()
+            csv = out / f"samples_{method}_p{ppf}.csv"
+            if method == "polynomial":
+                summary = track_folder(test_dir, sset, calibration, csv, method=method,
+                                       mapping=mapping,
+                                       progress=stage(f"track {method} {ppf} pulses/frame"))
+                samples = list(summary.samples)
+            else:
+                # Detection and identification do not depend on the gaze method: refit the
+                # polynomial run's identified glints on the orbit instead of tracking twice.
+                samples = geometric_from(sset, calibration, tracked[(ppf, "polynomial")])
+                _atomic_write(csv, samples_csv(samples).encode("utf-8"))
+            timings["track"] += time.perf_counter() - t
+            tracked[(ppf, method)] = samples
+            keyed = [by_key[(s.frame_index, s.strobe_index)] for s in samples]
+            truth = _true_gaze_points(sset, keyed)
+            est = np.array([[*s.screen_xy_m, sset.screen.z_m] for s in samples])
+            err = angular_error_deg(est, truth, sset.eye.rotation_center_m)
+            c, n, resid = _identities(samples, by_key)
+            if method == "polynomial":  # the same identities serve both methods
+                correct, total = correct + c, total + n
+                resid_p.append(resid)
+            errors[("rendered", ppf, method)] = err
+            reasons[(ppf, method)] = {r: sum(s.reason == r for s in samples)
+                                      for r in sorted({s.reason for s in samples})}
+            rows.append(_row("rendered", ppf, method, err, c / n if n else math.nan))
+        resid = np.concatenate(resid_p)
+        resid_all.append(resid)
+        noise_px = float(np.sqrt(np.mean(resid ** 2))) if resid.size else 0.0
+        noise_by_ppf[ppf] = noise_px
         t = time.perf_counter()
-        if method == "polynomial":
-            summary = track_folder(test_dir, setup, calibration, out / f"samples_{method}.csv",
-                                   method=method, mapping=mapping,
-                                   progress=stage(f"track {method}"))
-            samples = list(summary.samples)
-        else:
-            # Detection and identification do not depend on the gaze method: refit the
-            # polynomial run's identified glints on the orbit instead of tracking twice.
-            samples = geometric_from(setup, calibration, tracked["polynomial"])
-            _atomic_write(out / f"samples_{method}.csv", samples_csv(samples).encode("utf-8"))
-        timings[f"track_{method}"] = time.perf_counter() - t
-        tracked[method] = samples
-        keyed = [by_key[(s.frame_index, s.strobe_index)] for s in samples]
-        truth = _true_gaze_points(setup, keyed)
-        est = np.array([[*s.screen_xy_m, setup.screen.z_m] for s in samples])
-        err = angular_error_deg(est, truth, setup.eye.rotation_center_m)
-        c, n, resid = _identities(samples, by_key)
-        if method == "polynomial":  # the same identities serve both methods
-            correct, total = c, n
-            resid_all.append(resid)
-        errors[("rendered", method)] = err
-        reasons[method] = {r: sum(s.reason == r for s in samples)
-                           for r in sorted({s.reason for s in samples})}
-        rows.append(_row("rendered", ppf, method, err, c / n if n else math.nan))
+        for method in ("polynomial", "geometric"):
+            samples = tracked[(ppf, method)]
+            keyed = [by_key[(s.frame_index, s.strobe_index)] for s in samples]
+            err = _simulate(sset, calibration, method, mapping, samples,
+                            _true_gaze_points(sset, keyed), noise_px, seed)
+            errors[("simulated", ppf, method)] = err
+            rows.append(_row("simulated", ppf, method, err, 1.0))
+        timings["simulate"] += time.perf_counter() - t
     resid = np.concatenate(resid_all)
     noise_px = float(np.sqrt(np.mean(resid ** 2))) if resid.size else 0.0
-    for method, samples in tracked.items():
-        keyed = [by_key[(s.frame_index, s.strobe_index)] for s in samples]
-        err = _simulate(setup, calibration, method, mapping, samples,
-                        _true_gaze_points(setup, keyed), noise_px, seed)
-        errors[("simulated", method)] = err
-        rows.append(_row("simulated", ppf, method, err, 1.0))
     timings["total"] = sum(timings.values())
-    report = _write_report(report_dir, setup, cfg, rows, noise_px, correct, total, reasons,
-                           timings, errors, test_dir, tracked)
+    report = _write_report(report_dir, settings, cfg, rows, noise_by_ppf, correct, total,
+                           reasons, timings, errors, tracked)
     return ValidationResult(rows, noise_px, correct / total if total else math.nan, total,
-                            calibration, errors, reasons, timings, report, cfg)
+                            calibration, errors, reasons, timings, report, cfg, noise_by_ppf)
 
 
 # --------------------------------------------------------------------------- report
@@ -482,23 +541,24 @@ def _plots(errors: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
-    for (source, method), err in sorted(errors.items()):
+    for (source, ppf, method), err in sorted(errors.items()):
         e = np.sort(err[np.isfinite(err)])
         if e.size:
-            axes[0].plot(e, np.arange(1, e.size + 1) / err.size, label=f"{source} {method}",
+            axes[0].plot(e, np.arange(1, e.size + 1) / err.size,
+                         label=f"{source} {method} P={ppf}",
                          ls="-" if source == "rendered" else "--")
     axes[0].set_xscale("log")
     axes[0].set_xlabel("angular error (deg)")
     axes[0].set_ylabel("share of samples")
     axes[0].legend(fontsize=8)
     axes[0].set_title("cumulative error")
-    for method in ("polynomial", "geometric"):
-        r, s = errors.get(("rendered", method)), errors.get(("simulated", method))
-        if r is not None and s is not None and r.size:
+    for source, ppf, method in sorted(k for k in errors if k[0] == "rendered"):
+        r, s = errors[(source, ppf, method)], errors.get(("simulated", ppf, method))
+        if s is not None and r.size:
             with warnings.catch_warnings():  # samples failed in every realisation stay NaN
                 warnings.simplefilter("ignore", RuntimeWarning)
                 s = np.nanmedian(s.reshape(-1, r.size), axis=0)  # per pose, over realisations
-            axes[1].scatter(s, r, s=4, label=method)
+            axes[1].scatter(s, r, s=4, label=f"{method} P={ppf}")
     lim = axes[1].get_xlim()
     axes[1].plot(lim, lim, "k:", lw=0.8)
     axes[1].set_xlabel("simulated error, median of realisations (deg)")
@@ -510,28 +570,44 @@ def _plots(errors: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def _write_report(report_dir: Path, setup, cfg, rows, noise_px, correct, total, reasons,
-                  timings, errors, test_dir, tracked) -> Path:
+def _write_report(report_dir: Path, settings, cfg, rows, noise_by_ppf, correct, total,
+                  reasons, timings, errors, tracked) -> Path:
     figs = report_dir / "figures"
     figs.mkdir(parents=True, exist_ok=True)
-    _overlay(test_dir, setup, tracked["polynomial"], figs / "validation_frame.png")
+    shown = max(settings)  # the most bands per frame
+    setup, test_dir = settings[shown]
+    _overlay(test_dir, setup, tracked[(shown, "polynomial")], figs / "validation_frame.png")
     _plots(errors, figs / "validation_errors.png")
-    reason_lines = "".join(f"- {m}: " + ", ".join(f"{k} {v}" for k, v in r.items()) + "\n"
-                           for m, r in reasons.items())
+    reason_lines = "".join(f"- {m}, {p} pulses/frame: "
+                           + ", ".join(f"{k} {v}" for k, v in r.items()) + "\n"
+                           for (p, m), r in reasons.items())
+
+    def mean(source, p, m):
+        return next(r for r in rows if r.source == source and r.pulses_per_frame == p
+                    and r.method == m).mean_deg
+
     diff = "".join(
-        f"- {m}: rendered minus simulated mean error "
-        f"{next(r for r in rows if r.source == 'rendered' and r.method == m).mean_deg - next(r for r in rows if r.source == 'simulated' and r.method == m).mean_deg:+.3f} deg\n"
-        for m in ("polynomial", "geometric"))
+        f"- {m}, {p} pulses/frame: rendered minus simulated mean error "
+        f"{mean('rendered', p, m) - mean('simulated', p, m):+.3f} deg\n"
+        for p in settings for m in ("polynomial", "geometric"))
+    strobes = "; ".join(
+        f"{p} pulses/frame: period {1e3 * s.strobe.period_s:.4f} ms, pulse "
+        f"{1e3 * s.strobe.pulse_s:.4f} ms, exposure {1e3 * s.sensor.exposure_s:.4f} ms, "
+        f"e_f = {noise_by_ppf[p]:.3f} px"
+        for p, (s, _) in settings.items())
     text = f"""# End-to-end validation: rendered banded frames through the tracker
 
 Generated by `scet_render.validate.run_validation`. Scene `{setup.name}` at
 {setup.camera.width_px}x{setup.camera.height_px} px, {cfg.spp} spp, {cfg.cornea} cornea,
-{cfg.frames} test frames (fixations on the 24 x 15 grid, seeded order), calibration on the
+{cfg.frames} test frames per strobe setting (fixations on the 24 x 15 grid, seeded order; the
+same trajectory and seed for every setting), calibration on the
 {cfg.calib_grid[0]}x{cfg.calib_grid[1]} pattern from single-pulse frames (every row lit by the
-same pulse). Ground truth: the optical axis at each strobe instant (`labels.jsonl`). The
-feature-level simulation uses the same poses, the same identified lights per sample, the same
-calibration and Gaussian feature noise e_f = {noise_px:.3f} px (the RMS per-axis error of the
-rendered detections against the labelled glints).
+same pulse), shared by all settings. Strobe settings (the scene's own pulse count as configured;
+the others with the period locked to the frame, the scene's pulse width and the exposure of
+Eq. (8), so the bands tile): {strobes}. Ground truth: the optical axis at each strobe instant
+(`labels.jsonl`). The feature-level simulation uses the same poses, the same identified lights
+per sample, the same calibration and Gaussian feature noise e_f of the same strobe setting (the
+RMS per-axis error of its rendered detections against the labelled glints).
 
 {table_markdown(rows)}
 Identified glints: {total}, with the right light: {correct}
@@ -541,12 +617,13 @@ labelled glint).
 {diff}
 Reasons (rendered):
 {reason_lines}
-Wall time (s, 2-core CPU): """ + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()) + """
+Wall time (s, 2-core CPU): """ + ", ".join(f"{k} {v:.1f}" for k, v in timings.items()) + f"""
 
 ![banded frame with detections](figures/validation_frame.png)
 
 Green: glints identified in estimated samples; red: other detections (clutter, or glints of
 bands that failed); blue ticks: first row of each band (320x240 frames are shown at 2x).
+The frame is from the {shown} pulses/frame sequence.
 
 ![errors](figures/validation_errors.png)
 """

@@ -2,8 +2,8 @@
 
 One validation run is rendered once per module (half resolution, conductor cornea, Mitsuba)
 and each metric is asserted in its own test. The fast suite renders 25 calibration frames and
-4 test frames (~30 s on 2 cores); the slow test runs the whole quick mode. Both skip without
-Mitsuba.
+4 test frames at one strobe setting (~30 s on 2 cores); the slow test runs the whole quick
+mode (every strobe setting of :data:`QUICK`). Both skip without Mitsuba.
 """
 
 import math
@@ -14,7 +14,8 @@ import pytest
 from estimator.calibration import Calibration
 from estimator.scene import load_scene
 from estimator.tracker import read_samples_csv
-from scet_render.validate import QUICK, ValidationConfig, calibration_setup, run_validation
+from scet_render.validate import (QUICK, ValidationConfig, calibration_setup, run_validation,
+                                  strobe_setup)
 
 pytest.importorskip("mitsuba", reason="end-to-end validation renders with Mitsuba 3")
 
@@ -27,7 +28,9 @@ MIN_IDENTITY_RATE = 0.99
 #: ~0.15 px RMS of the closed-form glints, which the paper's Fig. 8 maps to well under 0.5 deg.
 GEOMETRIC_MEDIAN_DEG = 0.5
 
-SMALL = ValidationConfig(scale=2, spp=4, cornea="conductor", frames=4)
+SMALL = ValidationConfig(scale=2, spp=4, cornea="conductor", frames=4, pulses_per_frame=(16,))
+SOURCES = ("rendered", "simulated")
+METHODS = ("polynomial", "geometric")
 
 
 @pytest.fixture(scope="module")
@@ -50,7 +53,34 @@ def test_calibration_timing_lights_every_row_with_one_whole_pulse():
     assert np.allclose(lit[:, 0], 1.0), "every visible row collects the whole pulse"
 
 
+def _check_rows(res):
+    """One row per (pulses per frame, method, source), for every configured strobe setting."""
+    keys = [(r.pulses_per_frame, r.method, r.source) for r in res.rows]
+    assert sorted(keys) == sorted((p, m, s) for p in res.config.pulses_per_frame
+                                  for m in METHODS for s in SOURCES)
+    assert set(res.feature_noise_by_ppf) == set(res.config.pulses_per_frame)
+
+
+def test_strobe_settings_tile_the_frame():
+    from estimator.banding import band_gap_rows
+
+    base = load_scene("paper_sim")
+    assert strobe_setup(base, base.strobe.pulses_per_frame) is base
+    for ppf in (4, 8, 32):
+        s = strobe_setup(base, ppf)
+        assert s.strobe.pulses_per_frame == ppf
+        assert math.isclose(s.strobe.period_s * ppf, base.sensor.frame_period_s)
+        assert s.strobe.pulse_s == base.strobe.pulse_s
+        assert math.isclose(s.sensor.exposure_s, s.strobe.period_s - s.strobe.pulse_s)
+        assert abs(band_gap_rows(s.sensor, s.strobe)) < 1e-6
+
+
+def test_quick_mode_has_several_strobe_settings():
+    assert len(QUICK.pulses_per_frame) >= 2
+
+
 def test_some_samples_are_estimated(result):
+    _check_rows(result)
     for r in result.rows:
         assert r.n > 0 and r.valid > 0.2, r
 
@@ -63,18 +93,21 @@ def test_identities_match_the_labels(result):
 
 @pytest.mark.parametrize("method", ["polynomial", "geometric"])
 def test_rendered_accuracy_matches_the_feature_level_simulation(result, method):
-    r = _median(result.errors_deg[("rendered", method)])
-    s = _median(result.errors_deg[("simulated", method)])
-    assert abs(r - s) < RENDER_VS_SIM_DEG, f"{method}: rendered {r:.3f} deg, simulated {s:.3f} deg"
+    for ppf in result.config.pulses_per_frame:
+        r = _median(result.errors_deg[("rendered", ppf, method)])
+        s = _median(result.errors_deg[("simulated", ppf, method)])
+        assert abs(r - s) < RENDER_VS_SIM_DEG, (
+            f"{method}, {ppf} pulses/frame: rendered {r:.3f} deg, simulated {s:.3f} deg")
 
 
 def test_geometric_gaze_is_accurate_on_renders(result):
-    med = _median(result.errors_deg[("rendered", "geometric")])
+    med = _median(result.errors("rendered", "geometric"))
     assert med < GEOMETRIC_MEDIAN_DEG, f"median error {med:.3f} deg"
 
 
 def test_feature_noise_is_subpixel(result):
     assert 0 < result.feature_noise_px < 0.5
+    assert all(0 < v < 0.5 for v in result.feature_noise_by_ppf.values())
 
 
 def test_outputs_are_written_and_versioned(result):
@@ -84,8 +117,10 @@ def test_outputs_are_written_and_versioned(result):
     assert (out / "figures" / "validation_errors.png").is_file()
     cal = Calibration.from_json((out / "calibration.json").read_text())
     assert math.isclose(cal.cornea_radius_m, 7.8e-3, rel_tol=0.02)
-    rows = read_samples_csv(out / "samples_polynomial.csv")
-    assert len(rows) == result.row("rendered", "polynomial").n
+    for ppf in result.config.pulses_per_frame:
+        rows = read_samples_csv(out / f"samples_polynomial_p{ppf}.csv")
+        assert len(rows) == result.row("rendered", "polynomial", ppf).n
+        assert f"| rendered | {ppf} | polynomial |" in result.report.read_text()
 
 
 @pytest.mark.slow
@@ -93,8 +128,10 @@ def test_quick_mode_end_to_end(tmp_path):
     res = run_validation(quick=True, out_dir=tmp_path)
     assert res.config == QUICK
     assert res.identity_rate >= MIN_IDENTITY_RATE
-    for method in ("polynomial", "geometric"):
-        r = _median(res.errors_deg[("rendered", method)])
-        s = _median(res.errors_deg[("simulated", method)])
-        assert abs(r - s) < RENDER_VS_SIM_DEG, (method, r, s)
-        assert res.row("rendered", method).valid > 0.3
+    _check_rows(res)
+    for ppf in QUICK.pulses_per_frame:
+        for method in METHODS:
+            r = _median(res.errors_deg[("rendered", ppf, method)])
+            s = _median(res.errors_deg[("simulated", ppf, method)])
+            assert abs(r - s) < RENDER_VS_SIM_DEG, (ppf, method, r, s)
+            assert res.row("rendered", method, ppf).valid > 0.3
