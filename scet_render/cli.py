@@ -109,6 +109,28 @@ def _progress_bar(total: int, unit: str, desc: str):
     return bar, update
 
 
+class _StageBars:
+    """Progress bars for a job made of named stages: one bar per stage, the previous closed when
+    the next starts. ``update(stage, done, total, label="")`` is the job's progress callback."""
+
+    def __init__(self):
+        self.name, self.bar, self.set = None, None, None
+
+    def update(self, stage, done, total, label=""):
+        if stage != self.name:
+            self.close()
+            self.name = stage
+            self.bar, self.set = _progress_bar(total, "step", stage)
+        if label:
+            self.bar.set_postfix_str(str(label)[:40], refresh=False)
+        self.set(done, total)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+            self.bar = None
+
+
 def cmd_render(args) -> int:
     from estimator.scene import load_scene
     from scet_render.dataset import render_dataset
@@ -168,21 +190,12 @@ def cmd_track(args) -> int:
 def cmd_validate(args) -> int:
     from scet_render.validate import run_validation, table_markdown
 
-    bars = {}
-
-    def progress(stage, done, total):
-        if stage not in bars:
-            for bar, _ in bars.values():
-                bar.close()
-            bars[stage] = _progress_bar(total, "step", stage)
-        bars[stage][1](done, total)
-
+    bars = _StageBars()
     try:
         result = run_validation(args.scene, quick=args.quick, out_dir=args.out, seed=args.seed,
-                                progress=progress, report_dir=args.report_dir)
+                                progress=bars.update, report_dir=args.report_dir)
     finally:
-        for bar, _ in bars.values():
-            bar.close()
+        bars.close()
     print(table_markdown(result.rows))
     print(f"glint identities right: {100 * result.identity_rate:.2f} % of {result.n_identified}; "
           f"rendered feature noise {result.feature_noise_px:.3f} px RMS")
@@ -194,18 +207,12 @@ def cmd_validate(args) -> int:
 def cmd_reproduce(args) -> int:
     from scet_render.reproduce import run_reproduction
 
-    bars = {}
-
-    def progress(done, total, label=""):
-        bar = bars.setdefault("all", _progress_bar(total, "step", "reproduce"))
-        bar[0].set_postfix_str(str(label)[:40], refresh=False)
-        bar[1](done, total)
-
+    bars = _StageBars()
     try:
-        path = run_reproduction(args.out, quick=args.quick, seed=args.seed, progress=progress)
+        path = run_reproduction(args.out, quick=args.quick, seed=args.seed,
+                                progress=lambda done, total, label="": bars.update("reproduce", done, total, label))
     finally:
-        for bar, _ in bars.values():
-            bar.close()
+        bars.close()
     print(f"report written to {path}")
     return 0
 
