@@ -48,17 +48,18 @@ def rotation_from_vector(rotvec) -> np.ndarray:
 def rotation_to_vector(rotation) -> np.ndarray:
     """Rotation vector (axis times angle in radians) of a (3, 3) rotation matrix."""
     R = np.asarray(rotation, dtype=np.float64)
-    cos = np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)
-    angle = np.arccos(cos)
-    if angle < 1e-12:
+    # 2 sin(angle) times the axis, from the antisymmetric part; the angle from atan2 of sine and
+    # cosine (arccos of the trace alone loses small angles: cos(1e-8) rounds to 1).
+    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    sin2 = np.linalg.norm(axis)
+    angle = np.arctan2(sin2 / 2.0, (np.trace(R) - 1.0) / 2.0)
+    if sin2 == 0.0 and angle < 1.0:
         return np.zeros(3)
     if np.pi - angle < 1e-6:
         # Near 180 degrees the antisymmetric part vanishes; read the axis off R + I.
         M = (R + np.eye(3)) / 2.0
-        axis = M[np.argmax(np.diag(M))]
-        return normalize(axis) * angle
-    axis = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    return axis / (2.0 * np.sin(angle)) * angle
+        return normalize(M[np.argmax(np.diag(M))]) * angle
+    return axis * (angle / sin2)
 
 
 def look_at_rotation(eye_m, target_m, up=(0.0, 1.0, 0.0)) -> np.ndarray:

@@ -2,12 +2,20 @@
 
 With ``SCET_REQUIRE_ALL=1`` (set by ``.ci/run``) a test that skips because an optional
 dependency cannot be imported fails instead, so that CI never passes by silently skipping
-what it is meant to check (trimesh's ALL_DEPENDENCIES switch).
+what it is meant to check (trimesh's ALL_DEPENDENCIES switch). It also makes hypothesis
+draw a fixed sequence of examples (the "ci" profile).
 """
 
 import os
 
 import pytest
+from hypothesis import settings
+
+# CI runs the property-based tests on a fixed sequence of examples, so that a red run can be
+# reproduced; locally they draw new examples each run.
+settings.register_profile("ci", derandomize=True)
+if os.environ.get("SCET_REQUIRE_ALL") == "1":
+    settings.load_profile("ci")
 
 
 @pytest.hookimpl(hookwrapper=True)

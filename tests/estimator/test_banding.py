@@ -146,7 +146,10 @@ def test_prototype_every_visible_row_is_lit(phase):
     # Where two bands overlap, the ramp down of one and the ramp up of the next add to
     # -gap / (S Δs / Δt) = 2.85 / 4.72 = 0.60 of a pulse; nowhere is darker.
     darkest = -band_gap_rows(PROTO_SENSOR, strobe) / partial_lines(PROTO_SENSOR, PROTO_PULSE_S)
-    assert total.min() >= darkest - 1e-9
+    # 1e-6 of a pulse: a pulse that reaches the frame only by a sliver too short to light a row
+    # is left out by design (_frame_pulses); hypothesis found phase = -1.35e-13 s, whose sliver
+    # is 1.35e-9 of a pulse.
+    assert total.min() >= darkest - 1e-6
     index, time_s, weight = row_strobe(PROTO_SENSOR, strobe)
     assert np.all(index != NO_PULSE) and np.all(np.isfinite(time_s)) and np.all(weight > 0)
 
