@@ -30,6 +30,8 @@ Everything is vectorised over lights and over a batch of cornea positions.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 
 from .camera import Camera
@@ -42,77 +44,114 @@ _STEP_STOP_RAD = 1e-8
 _MAX_NEWTON_ITER = 60
 
 
-def _plane_frame(camera_position_m, cornea_center_m, cornea_radius_m, lights_world_m):
-    """Scaled in-plane quantities for every (pose, light) pair, broadcast to (..., n).
+class _Plane(NamedTuple):
+    """The plane of reflection of every (pose, light) pair, in a frame centred on the camera.
 
-    Works on x, y, z component arrays: reductions over a length-3 axis are several times
-    slower in numpy than the same arithmetic written out.
+    Component arrays rather than (..., 3) vectors: numpy is several times faster on separate
+    x, y, z arrays than on reductions over a length-3 axis. Angles are carried as cosine and
+    sine pairs (cos φ, sin φ; cos θ, sin θ), which the geometry yields without trigonometric
+    calls (numpy's sin and cos cost ~15 ns an element, ten times a multiplication).
     """
-    O = as_points(camera_position_m, "camera_position_m")
-    c = as_points(cornea_center_m, "cornea_center_m")
-    L = as_points(lights_world_m, "lights_world_m")
-    if L.ndim == 1:
-        L = L[None, :]
-    r = np.asarray(cornea_radius_m, dtype=np.float64)
-    if np.any(~(r > 0)) or np.any(~np.isfinite(r)):
-        raise ValueError(f"cornea_radius_m must be positive and finite, got {cornea_radius_m}")
-    o = O - c  # (..., 3)
-    o_norm = np.sqrt(o[..., 0] ** 2 + o[..., 1] ** 2 + o[..., 2] ** 2)
-    e1 = o / np.where(o_norm > 0, o_norm, 1.0)[..., None]
-    # Per pose, a fixed unit vector perpendicular to e1 for the degenerate plane (a light on
-    # the line through O and c, where θ = 0 or π and any plane through the line will do).
-    fb = np.cross(e1, np.array([0.0, 0.0, 1.0]))
-    fb = np.where(np.linalg.norm(fb, axis=-1, keepdims=True) > 1e-6, fb,
-                  np.cross(e1, np.array([1.0, 0.0, 0.0])))
-    fb = fb / np.linalg.norm(fb, axis=-1, keepdims=True)
-    e1x, e1y, e1z = (e1[..., i][..., None] for i in range(3))
-    lx = L[..., 0] - c[..., 0][..., None]
-    ly = L[..., 1] - c[..., 1][..., None]
-    lz = L[..., 2] - c[..., 2][..., None]
+
+    c: tuple  # cornea centre, 3 x (..., 1)
+    r: np.ndarray  # radius, (..., 1) or scalar
+    e1: tuple  # unit vector from c toward the camera, 3 x (..., 1)
+    e2: tuple  # in-plane unit vector perpendicular to e1 toward the light, 3 x (..., n)
+    alpha: np.ndarray  # |O - c| / r, (..., 1) or (..., n)
+    beta: np.ndarray  # |G - c| / r, (..., n)
+    cp: np.ndarray  # cos φ
+    sp: np.ndarray  # sin φ >= 0
+    outside: np.ndarray  # camera and light both outside the sphere
+
+
+def _components(a, tail: int):
+    """Split the last axis of ``a`` into 3 arrays, each with ``tail`` trailing singleton axes."""
+    return tuple(a[..., i][(...,) + (None,) * tail] for i in range(3))
+
+
+def _plane(center_local, radius, lights_local) -> _Plane:
+    """Plane frames for centres (..., 3) and lights (n, 3) or (..., n, 3), both given relative
+    to the camera centre (the camera sits at the origin)."""
+    r = np.asarray(radius, dtype=np.float64)
+    if not (r.min() > 0 and r.max() < np.inf):  # also NaN
+        raise ValueError(f"cornea_radius_m must be positive and finite, got {radius}")
+    cx, cy, cz = _components(center_local, 1)
+    o_norm = np.sqrt(cx * cx + cy * cy + cz * cz)
+    inv_o = 1.0 / np.where(o_norm > 0, o_norm, 1.0)
+    e1x, e1y, e1z = -cx * inv_o, -cy * inv_o, -cz * inv_o
+    lx = lights_local[..., 0] - cx
+    ly = lights_local[..., 1] - cy
+    lz = lights_local[..., 2] - cz
     l_par = lx * e1x + ly * e1y + lz * e1z
     px, py, pz = lx - l_par * e1x, ly - l_par * e1y, lz - l_par * e1z
     l_perp = np.sqrt(px * px + py * py + pz * pz)
     l_norm = np.sqrt(l_par * l_par + l_perp * l_perp)
+    inv_n = 1.0 / np.where(l_norm > 0, l_norm, 1.0)
     degenerate = l_perp <= 1e-12 * l_norm
-    inv = 1.0 / np.where(degenerate, 1.0, l_perp)
-    e2 = [np.where(degenerate, fb[..., i][..., None], q * inv) for i, q in enumerate((px, py, pz))]
+    if degenerate.any():
+        # A light on the line through the camera and c (θ = 0 or π): any plane through the line
+        # will do; take a fixed unit vector perpendicular to e1, per pose.
+        e1 = np.stack(np.broadcast_arrays(e1x, e1y, e1z), -1)[..., 0, :]
+        fb = np.cross(e1, np.array([0.0, 0.0, 1.0]))
+        fb = np.where(np.linalg.norm(fb, axis=-1, keepdims=True) > 1e-6, fb,
+                      np.cross(e1, np.array([1.0, 0.0, 0.0])))
+        fb = fb / np.linalg.norm(fb, axis=-1, keepdims=True)
+        inv = 1.0 / np.where(degenerate, 1.0, l_perp)
+        e2 = tuple(np.where(degenerate, f, q * inv) for f, q in zip(_components(fb, 1), (px, py, pz)))
+    else:
+        inv = 1.0 / l_perp
+        e2 = (px * inv, py * inv, pz * inv)
     r_b = r[..., None] if r.ndim else r
-    alpha = o_norm[..., None] / r_b
+    alpha = o_norm / r_b  # (..., 1) unless the radius varies per light
     beta = l_norm / r_b
-    phi = np.arctan2(l_perp, l_par)
-    alpha, beta, phi = np.broadcast_arrays(alpha, beta, phi)
-    return c, r, (e1x, e1y, e1z), e2, alpha, beta, phi
+    return _Plane((cx, cy, cz), r_b, (e1x, e1y, e1z), e2, alpha, beta,
+                  l_par * inv_n, l_perp * inv_n, (alpha > 1) & (beta > 1))
 
 
-def _newton_root(alpha, beta, phi, theta0):
-    """The root of (R) in [0, φ]: two plain Newton steps from ``theta0`` (the first-order closed
-    form is within ~1e-4 rad, so the second step is already below the stopping size), then a
-    bracketed Newton-bisection for the few pairs that did not settle (near-grazing light)."""
-    shape = phi.shape
-    a, b, p = (np.ravel(x) for x in (alpha, beta, phi))
-    theta = np.clip(np.ravel(theta0), 0.0, p)
-    sp, cp = np.sin(p), np.cos(p)
+def _newton_unit(a, b, cp, sp, ct, st):
+    """The root of (R) in [0, φ] as (cos θ, sin θ): two Newton steps from (ct, st) (the
+    first-order closed form is within ~1e-4 rad, so the second step is already below the
+    stopping size), then a bracketed Newton-bisection for the few pairs that did not settle
+    (near-grazing light).
+
+    A Newton step δ = F / F' turns the unit vector by -atan(δ) (a normalised (ct + δ st,
+    st - δ ct)): the same fixed point as θ - δ and the same quadratic convergence, as
+    atan(δ) = δ + O(δ³), without a trigonometric call."""
     ab = a * b
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for _ in range(2):
-            f, df = _reflection_condition(a, b, ab, sp, cp, theta)
+            f, df, s1 = _reflection_condition_unit(a, b, ab, cp, sp, ct, st)
             step = f / df
-            theta = theta - step
-    done = (np.abs(step) < _STEP_STOP_RAD) & (theta >= 0) & (theta <= p)  # NaN -> False
+            q = 1.0 / np.sqrt(1.0 + step * step)
+            ct, st = (ct + step * st) * q, (st - step * ct) * q
+        # Settled: a small last step and θ inside [0, φ] (sin θ >= 0, sin(φ - θ) >= 0).
+        done = (np.abs(step) < _STEP_STOP_RAD) & (st >= 0) & (sp * ct - cp * st >= -1e-15)
     if not done.all():
-        i = np.flatnonzero(~done)
-        theta[i] = _bracketed_root(a[i], b[i], p[i], sp[i], cp[i], np.clip(np.ravel(theta0)[i], 0, p[i]))
-    return theta.reshape(shape)
+        i = np.nonzero(~done)
+        a, b = (np.broadcast_to(q, done.shape) for q in (a, b))
+        p = np.arctan2(sp[i], cp[i])
+        theta0 = np.clip(np.arctan2(st[i], ct[i]), 0.0, p)
+        theta0 = np.where(np.isfinite(theta0), theta0, 0.5 * p)
+        theta = _bracketed_root(a[i], b[i], p, sp[i], cp[i], theta0)
+        ct, st = ct.copy(), st.copy()
+        ct[i], st[i] = np.cos(theta), np.sin(theta)
+    return ct, st
+
+
+def _reflection_condition_unit(a, b, ab, cp, sp, ct, st):
+    """F(θ) of (R), F'(θ) and sin(φ - θ) from the cosines and sines of θ and φ."""
+    s1 = sp * ct - cp * st  # sin(φ - θ)
+    c1 = cp * ct + sp * st  # cos(φ - θ)
+    s2 = s1 * ct - c1 * st  # sin(φ - 2θ)
+    c2 = c1 * ct + s1 * st  # cos(φ - 2θ)
+    f = ab * s2 + a * st - b * s1
+    df = a * ct + b * c1 - 2 * ab * c2
+    return f, df, s1
 
 
 def _reflection_condition(a, b, ab, sp, cp, theta):
-    """F(θ) of (R) and F'(θ), from sin θ and cos θ and the angle-sum identities."""
-    st, ct = np.sin(theta), np.cos(theta)
-    s2, c2 = 2 * st * ct, ct * ct - st * st
-    s_pt = sp * ct - cp * st  # sin(φ - θ)
-    c_pt = cp * ct + sp * st  # cos(φ - θ)
-    f = ab * (sp * c2 - cp * s2) + a * st - b * s_pt
-    df = -2 * ab * (cp * c2 + sp * s2) + a * ct + b * c_pt
+    """F(θ) of (R) and F'(θ) at the angle θ (the bracketed fallback works in angles)."""
+    f, df, _ = _reflection_condition_unit(a, b, ab, cp, sp, np.cos(theta), np.sin(theta))
     return f, df
 
 
@@ -159,8 +198,10 @@ def reflection_quartic(alpha, beta, phi) -> np.ndarray:
     )
 
 
-def _quartic_root(alpha, beta, phi):
-    """The bracketed root of (R) from the eigenvalues of the quartic's companion matrix."""
+def _quartic_root(alpha, beta, cp, sp):
+    """The bracketed root of (R) from the eigenvalues of the quartic's companion matrix, as
+    (cos θ, sin θ) after a Newton polish."""
+    phi = np.arctan2(sp, cp)
     coeffs = reflection_quartic(alpha, beta, phi)
     lead = coeffs[..., 0]
     ok = np.abs(lead) > 1e-300
@@ -177,37 +218,78 @@ def _quartic_root(alpha, beta, phi):
     best = np.take_along_axis(real, np.argmin(dist, axis=-1)[..., None], axis=-1)[..., 0]
     theta = 2 * np.arctan(np.clip(best, 0.0, t_max[..., 0]))
     theta = np.where(ok, theta, phi / 2)
-    # Newton polish in θ (also the fallback where the companion matrix was ill-posed).
-    return _newton_root(alpha, beta, phi, theta)
+    # Newton polish (also the fallback where the companion matrix was ill-posed).
+    return _newton_unit(alpha, beta, cp, sp, np.cos(theta), np.sin(theta))
 
 
-def _solve(camera_position_m, cornea_center_m, cornea_radius_m, lights_world_m, solver):
-    """Reflection points and the in-plane quantities the Jacobians reuse."""
-    c, r, e1, e2, alpha, beta, phi = _plane_frame(
-        camera_position_m, cornea_center_m, cornea_radius_m, lights_world_m)
-    outside = (alpha > 1) & (beta > 1)
+def _first_order_root(alpha, beta, cp, sp):
+    """(cos θ₀, sin θ₀): the first-order closed form around the bisector φ / 2, exact for a
+    distant camera and light, θ₀ = φ/2 + (α - β) sin(φ/2) / (2αβ - (α + β) cos(φ/2))."""
+    ch = np.sqrt(np.maximum(0.5 * (1 + cp), 0.0))  # cos(φ/2), φ in [0, π]
+    sh = np.sqrt(np.maximum(0.5 * (1 - cp), 0.0))
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        d = (alpha - beta) * sh / (2 * alpha * beta - (alpha + beta) * ch)
+    d = np.where(np.abs(d) < 1.0, d, 0.0)  # also NaN; the bisector is a safe start
+    q = 1.0 / np.sqrt(1.0 + d * d)
+    return (ch - d * sh) * q, (sh + d * ch) * q
+
+
+class _Solution(NamedTuple):
+    """Reflection points in the local (camera-centred) frame and the quantities the Jacobians
+    reuse."""
+
+    plane: _Plane
+    alpha: np.ndarray  # α, β with harmless stand-ins where there is no reflection
+    beta: np.ndarray
+    ct: np.ndarray  # cos θ, (..., n)
+    st: np.ndarray  # sin θ
+    c1: np.ndarray  # cos(φ - θ)
+    normal: tuple  # outward unit normal at the reflection point, 3 x (..., n)
+    point: tuple  # reflection point relative to the camera centre, 3 x (..., n)
+    ok: np.ndarray  # the reflection exists and faces camera and light
+
+
+def _solve_local(center_local, radius, lights_local, solver) -> _Solution:
+    """Reflection points for centres and lights given relative to the camera centre."""
+    pl = _plane(center_local, radius, lights_local)
     # With the camera or a light inside the sphere there is no reflection; solve a harmless
     # stand-in problem there so that the iteration's stopping test only sees real ones.
-    alpha = np.where(outside, alpha, 2.0)
-    beta = np.where(outside, beta, 2.0)
+    if pl.outside.all():
+        alpha, beta = pl.alpha, pl.beta
+    else:
+        alpha = np.where(pl.outside, pl.alpha, 2.0)
+        beta = np.where(pl.outside, pl.beta, 2.0)
     if solver == "newton":
-        # First-order closed form around the bisector (exact for a distant camera and light).
-        half = phi / 2
-        denom = 2 * alpha * beta - (alpha + beta) * np.cos(half)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            theta0 = half + (alpha - beta) * np.sin(half) / denom
-        theta0 = np.where(np.isfinite(theta0), theta0, half)
-        theta = _newton_root(alpha, beta, phi, theta0)
+        ct, st = _newton_unit(alpha, beta, pl.cp, pl.sp, *_first_order_root(alpha, beta, pl.cp, pl.sp))
     elif solver == "quartic":
-        theta = _quartic_root(alpha, beta, phi)
+        ct, st = _quartic_root(alpha, beta, pl.cp, pl.sp)
     else:
         raise ValueError(f"solver must be 'newton' or 'quartic', got {solver!r}")
-    ct, st = np.cos(theta), np.sin(theta)
-    normals = np.stack([ct * a + st * b for a, b in zip(e1, e2)], axis=-1)
-    r_b = r[..., None, None] if r.ndim else r
-    points = c[..., None, :] + r_b * normals
-    ok = outside & (alpha * ct > 1) & (beta * np.cos(phi - theta) > 1)
-    return points, normals, ok, (e1, e2, ct, st, alpha, beta, phi, r)
+    normal = tuple(ct * a + st * b for a, b in zip(pl.e1, pl.e2))
+    point = tuple(c + pl.r * nn for c, nn in zip(pl.c, normal))
+    c1 = pl.cp * ct + pl.sp * st
+    ok = pl.outside & (alpha * ct > 1) & (beta * c1 > 1)
+    return _Solution(pl, alpha, beta, ct, st, c1, normal, point, ok)
+
+
+def _to_local(camera_position_m, rotation, cornea_center, lights):
+    """Centres and lights relative to the camera centre, rotated into the camera frame if a
+    world-to-camera ``rotation`` is given."""
+    c = cornea_center - camera_position_m
+    L = lights - camera_position_m
+    if rotation is not None:
+        c, L = _apply(rotation, c), _apply(rotation, L)
+    return c, L
+
+
+def _apply(M, v):
+    """M v for (..., 3) vectors. einsum's loop sums in the same order for every vector, so the
+    result of one does not depend on the batch it comes in (a BLAS product may not)."""
+    return np.einsum("ij,...j->...i", M, v)
+
+
+def _stack(comps):
+    return np.stack(np.broadcast_arrays(*comps), axis=-1)
 
 
 def reflection_points(camera_position_m, cornea_center_m, cornea_radius_m, lights_world_m, *,
@@ -237,9 +319,14 @@ def reflection_points(camera_position_m, cornea_center_m, cornea_radius_m, light
         True where the reflection exists and is seen: camera and light outside the sphere and
         both on the outer side of the tangent plane at G_s.
     """
-    points, normals, ok, _ = _solve(camera_position_m, cornea_center_m, cornea_radius_m,
-                                    lights_world_m, solver)
-    return points, normals, ok
+    O = as_points(camera_position_m, "camera_position_m").reshape(3)
+    c = as_points(cornea_center_m, "cornea_center_m")
+    L = as_points(lights_world_m, "lights_world_m")
+    if L.ndim == 1:
+        L = L[None, :]
+    c_loc, L_loc = _to_local(O, None, c, L)
+    sol = _solve_local(c_loc, cornea_radius_m, L_loc, solver)
+    return _stack(sol.point) + O, _stack(sol.normal), np.broadcast_to(sol.ok, sol.ct.shape).copy()
 
 
 def project_glints(camera: Camera, cornea_center, cornea_radius, lights_world, *,
@@ -318,21 +405,32 @@ def project_glints(camera: Camera, cornea_center, cornea_radius, lights_world, *
 _BLOCK_PAIRS = 8192
 
 
-def _visibility(camera, points, normals, ok, axis, cap_cos_min):
-    """Pixels of reflection points, and which glints are seen: on the cap, in the image."""
-    if axis is not None:
-        ok = ok & (np.einsum("...nk,...k->...n", normals, axis) >= cap_cos_min)
-    glints, depth = camera.project(points)
-    visible = ok & (depth > 0) & camera.in_image(np.nan_to_num(glints, nan=-1e9))
-    return glints, visible
+def _visibility_local(camera: Camera, sol: _Solution, axis_local, cap_cos_min):
+    """Pixels (u, v) of the reflection points, 1 / depth, and which glints are seen: on the cap
+    (normal · axis >= cap_cos_min), in front of the camera and in the image."""
+    ok = sol.ok
+    if axis_local is not None:
+        ax = _components(axis_local, 1)
+        ok = ok & (sol.normal[0] * ax[0] + sol.normal[1] * ax[1] + sol.normal[2] * ax[2] >= cap_cos_min)
+    X, Y, Z = sol.point
+    with np.errstate(divide="ignore", invalid="ignore"):
+        iz = np.where(Z > 0, 1.0 / Z, np.nan)
+    u = camera.fx_px * X * iz + camera.cx_px
+    v = camera.fy_px * Y * iz + camera.cy_px
+    # NaN (behind the camera) compares False.
+    visible = ok & (u >= -0.5) & (u <= camera.width_px - 0.5) & (v >= -0.5) & (v <= camera.height_px - 0.5)
+    return u, v, iz, visible
 
 
 def _project_block(camera, center, radius, lights, axis, cap_cos_min, solver, return_points):
-    points, normals, ok, _ = _solve(camera.position_m, center, radius, lights, solver)
-    glints, visible = _visibility(camera, points, normals, ok, axis, cap_cos_min)
+    R = camera.rotation
+    c_loc, L_loc = _to_local(camera.position_m, R, center, lights)
+    sol = _solve_local(c_loc, radius, L_loc, solver)
+    u, v, _, visible = _visibility_local(camera, sol, None if axis is None else _apply(R, axis), cap_cos_min)
+    out = (_stack((u, v)), np.broadcast_to(visible, sol.ct.shape))
     if return_points:
-        return glints, visible, points
-    return glints, visible
+        return out + (_apply(R.T, _stack(sol.point)) + camera.position_m,)
+    return out
 
 
 def reflect_pixel_rays(camera: Camera, cornea_center, cornea_radius, pixels_px):
@@ -374,7 +472,7 @@ def reflect_pixel_rays(camera: Camera, cornea_center, cornea_radius, pixels_px):
 
 def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, *,
                     cornea_axis=None, cap_cos_min: float | None = None,
-                    radius_and_lights: bool = True):
+                    radius_and_lights: bool = True, frame: str = "world"):
     """Glints and their derivatives with respect to the cornea centre, the corneal radius and
     the light positions, in closed form.
 
@@ -391,7 +489,10 @@ def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, 
 
     followed by the pinhole Jacobian. About five times cheaper than general 3x3 algebra, and
     checked against finite differences in the tests. With ``radius_and_lights=False`` only
-    d_center is computed (the other two are None), which is what a centre fit needs.
+    d_center is computed (the other two are None), which is what a centre fit needs. With
+    ``frame="camera"`` d_center and d_light are derivatives with respect to camera-frame
+    coordinates (world ones are those times ``camera.rotation``), which saves rotating every
+    glint's rows when only sums over glints are needed (JᵀJ rotates as Rᵀ JᵀJ R).
 
     Returns
     -------
@@ -404,47 +505,75 @@ def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, 
     d_light : (..., n, 2, 3)
         d glint / d light position (px per metre).
     """
+    center = as_points(cornea_center, "cornea_center")
+    lights = as_points(lights_world, "lights_world")
+    if lights.ndim == 1:
+        lights = lights[None, :]
     axis = None if cornea_axis is None else as_points(cornea_axis, "cornea_axis")
     if (axis is None) != (cap_cos_min is None):
         raise ValueError("cornea_axis and cap_cos_min must be given together")
-    points, n, ok, (e1, e2, ct, st, alpha, beta, phi, r) = _solve(
-        camera.position_m, cornea_center, cornea_radius, lights_world, "newton")
-    glints, visible = _visibility(camera, points, n, ok, axis, cap_cos_min)
-    rr = r[..., None] if r.ndim else r
-    # Distances and incidence angle from the in-plane solution (scaled by r).
-    qa = np.sqrt(np.maximum(alpha * alpha - 2 * alpha * ct + 1, 1e-300))
-    cpt = np.cos(phi) * ct + np.sin(phi) * st  # cos(φ - θ)
-    qb = np.sqrt(np.maximum(beta * beta - 2 * beta * cpt + 1, 1e-300))
-    cos_i = (alpha * ct - 1) / qa
-    sin_i = alpha * st / qa
-    inv_du, inv_dw = 1 / (rr * qa), 1 / (rr * qb)
-    H, D = inv_du + inv_dw, inv_dw - inv_du
-    g = 2 + rr * H * cos_i
-    qk = 2 * cos_i + rr * H
-    with np.errstate(divide="ignore", invalid="ignore"):
-        a_t, b_tn, a_k = 2 / g, rr * D * sin_i / g, 2 * cos_i / qk
-        l_t, l_k = rr * inv_dw / g, rr * inv_dw / qk
-    t = np.stack([st * x - ct * y for x, y in zip(e1, e2)], axis=-1)
-    k = np.stack([e1[1] * e2[2] - e1[2] * e2[1], e1[2] * e2[0] - e1[0] * e2[2],
-                  e1[0] * e2[1] - e1[1] * e2[0]], axis=-1)
-    # Pinhole Jacobian J_pi (2x3 per glint): rows f (R_x - (X/Z) R_z) / Z and f (R_y - (Y/Z) R_z) / Z.
+    if frame not in ("world", "camera"):
+        raise ValueError(f"frame must be 'world' or 'camera', got {frame!r}")
+    # Everything in the camera frame, where the pinhole Jacobian rows are f/Z (1, 0, -X/Z) and
+    # f/Z (0, 1, -Y/Z); derivatives with respect to world positions are those times R.
     R = camera.rotation
-    pc = (points - camera.position_m) @ R.T
+    c_loc, L_loc = _to_local(camera.position_m, R, center, lights)
+    sol = _solve_local(c_loc, cornea_radius, L_loc, "newton")
+    u, v, iz, visible = _visibility_local(camera, sol, None if axis is None else _apply(R, axis), cap_cos_min)
+    shape = sol.ct.shape
+    glints = _stack((u, v))
+    visible = np.broadcast_to(visible, shape)
+    a, b, ct, st, c1, rr = sol.alpha, sol.beta, sol.ct, sol.st, sol.c1, sol.plane.r
+    # Distances and incidence angle from the in-plane solution (scaled by r).
+    inv_qa = 1.0 / np.sqrt(np.maximum(a * a - 2 * a * ct + 1, 1e-300))
+    qb = np.sqrt(np.maximum(b * b - 2 * b * c1 + 1, 1e-300))
+    cos_i = (a * ct - 1) * inv_qa
+    sin_i = a * st * inv_qa
+    inv_du, inv_dw = inv_qa / rr, 1.0 / (rr * qb)
+    rH, rD = rr * (inv_du + inv_dw), rr * (inv_dw - inv_du)
     with np.errstate(divide="ignore", invalid="ignore"):
-        iz = 1 / pc[..., 2]
-    xz, yz = pc[..., 0] * iz, pc[..., 1] * iz
+        inv_g = 1.0 / (2 + rH * cos_i)
+        inv_qk = 1.0 / (2 * cos_i + rH)
+    b_tn = rD * sin_i * inv_g
+    (e1x, e1y, e1z), (e2x, e2y, e2z) = sol.plane.e1, sol.plane.e2
+    nx, ny, nz = sol.normal
+    tx, ty, tz = st * e1x - ct * e2x, st * e1y - ct * e2y, st * e1z - ct * e2z
+    kx, ky, kz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    X, Y, _ = sol.point
+    xz, yz = X * iz, Y * iz
     fxz, fyz = camera.fx_px * iz, camera.fy_px * iz
-    Jpi = np.stack([np.stack([fxz * (R[0, j] - xz * R[2, j]) for j in range(3)], -1),
-                    np.stack([fyz * (R[1, j] - yz * R[2, j]) for j in range(3)], -1)], -2)
-    Pt = (Jpi @ t[..., None])[..., 0]
-    Pk = (Jpi @ k[..., None])[..., 0]
-    outer = lambda p, v: p[..., :, None] * v[..., None, :]  # noqa: E731
+    # Pinhole rows applied to t and k (the J_pi t and J_pi k of the docstring, over f/Z).
+    pt_x, pt_y = tx - xz * tz, ty - yz * tz
+    pk_x, pk_y = kx - xz * kz, ky - yz * kz
     # dP/dc = I - t ((1 - a_t) t + b n)ᵀ - (1 - a_k) k kᵀ, since n nᵀ + t tᵀ + k kᵀ = I.
-    d_center = Jpi - outer(Pt, (1 - a_t)[..., None] * t + b_tn[..., None] * n) \
-        - outer((1 - a_k)[..., None] * Pk, k)
+    m_t, m_k = 1 - 2 * inv_g, 1 - 2 * cos_i * inv_qk
+    wx, wy, wz = m_t * tx + b_tn * nx, m_t * ty + b_tn * ny, m_t * tz + b_tn * nz
+    qx, qy = m_k * pk_x, m_k * pk_y
+    R_out = R if frame == "world" else None
+    d_center = _rows_to_world(
+        shape, R_out,
+        (fxz * (1 - pt_x * wx - qx * kx), fxz * -(pt_x * wy + qx * ky), fxz * -(xz + pt_x * wz + qx * kz)),
+        (fyz * -(pt_y * wx + qy * kx), fyz * (1 - pt_y * wy - qy * ky), fyz * -(yz + pt_y * wz + qy * kz)))
     if not radius_and_lights:
         return glints, visible, d_center, None, None
-    d_radius = np.einsum("...ij,...j->...i", Jpi, n) - b_tn[..., None] * Pt
-    w_perp = sin_i[..., None] * n + cos_i[..., None] * t
-    d_light = outer(l_t[..., None] * Pt, w_perp) + outer(l_k[..., None] * Pk, k)
-    return glints, visible, d_center, d_radius, d_light
+    d_radius = np.empty(shape + (2,))
+    d_radius[..., 0] = fxz * (nx - xz * nz - b_tn * pt_x)
+    d_radius[..., 1] = fyz * (ny - yz * nz - b_tn * pt_y)
+    l_t, l_k = rr * inv_dw * inv_g, rr * inv_dw * inv_qk
+    wpx, wpy, wpz = sin_i * nx + cos_i * tx, sin_i * ny + cos_i * ty, sin_i * nz + cos_i * tz
+    rows = []
+    for f, p_t, p_k in ((fxz, pt_x, pk_x), (fyz, pt_y, pk_y)):
+        s_t, s_k = f * l_t * p_t, f * l_k * p_k
+        rows.append((s_t * wpx + s_k * kx, s_t * wpy + s_k * ky, s_t * wpz + s_k * kz))
+    return glints, visible, d_center, d_radius, _rows_to_world(shape, R_out, *rows)
+
+
+def _rows_to_world(shape, R, row_u, row_v):
+    """(..., 2, 3) derivatives from their camera-frame rows (3 component arrays each): with
+    respect to world positions, d/dX_world = d/dX_camera R, written out per element; with
+    respect to camera-frame positions if ``R`` is None."""
+    out = np.empty(shape + (2, 3))
+    for i, (a0, a1, a2) in enumerate((row_u, row_v)):
+        for j in range(3):
+            out[..., i, j] = (a0, a1, a2)[j] if R is None else a0 * R[0, j] + a1 * R[1, j] + a2 * R[2, j]
+    return out

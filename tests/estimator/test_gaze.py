@@ -13,9 +13,11 @@ from scet_render.simulate import parse_targets, simulate_glints
 
 #: Degrees: with exact glints and ground-truth geometry the orbit fit stops at steps of ~1e-10 rad.
 EXACT_DEG = 1e-6
-#: Degrees: LM (batched or chained) and the paper's TRF reach the same least-squares minimum
-#: (1e-6 deg is ~1e-8 rad, far below the 0.02 deg error the noise causes).
-SAME_MINIMUM_DEG = 1e-6
+#: Degrees: LM (batched or chained) and the paper's TRF reach the same least-squares minimum.
+#: LM ends on a step below 1e-7 m, which leaves <= 4e-10 m in the cornea centre; a quadratic
+#: mapping turns that into ~6e-6 deg at the screen (measured). 2e-5 deg is 1e-3 of the 0.02 deg
+#: error the noise causes.
+SAME_MINIMUM_DEG = 2e-5
 
 
 @pytest.fixture(scope="module")
