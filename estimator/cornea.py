@@ -26,7 +26,7 @@ from scipy.optimize import least_squares
 from .camera import Camera
 from .eye import fick_angles, gaze_direction
 from .geometry import rotations_from_vectors
-from .projection import glint_jacobians, project_glints
+from .projection import _jacobian_terms, glint_jacobians, project_glints
 
 MODELS = {"center": 3, "orbit": 2, "full": 10}
 #: Reason codes of a fit, per sample.
@@ -177,20 +177,29 @@ def _normal_equations(model, problem: FitProblem, x, glints, mask):
         Jt = J.transpose(0, 2, 1)
         return np.einsum("bi,bi->b", r, r), Jt @ J, (Jt @ r[..., None])[..., 0]
     center, _, _ = _unpack(model, problem, x)
-    g, _, d_c, _, _ = glint_jacobians(problem.camera, center, problem.cornea_radius_m,
-                                      problem.lights_world_m, radius_and_lights=False, frame="camera")
-    B, n = mask.shape
-    r = np.where(mask[..., None], g - glints, 0.0).reshape(B, 2 * n)
-    J = np.where(mask[..., None, None], d_c, 0.0).reshape(B, 2 * n, 3)
-    Jt = J.transpose(0, 2, 1)
-    # Camera-frame sums, rotated once per sample: J_world = J_camera R.
+    T = _jacobian_terms(problem.camera, center, problem.cornea_radius_m, problem.lights_world_m,
+                        with_visibility=False)
+    # Sums over the glints of the camera-frame rows, rotated once per sample (J_world =
+    # J_camera R). A masked glint's rows and residual are zero; the where() also drops the NaN
+    # of a glint behind the camera.
+    ru = np.where(mask, T.u - glints[..., 0], 0.0)
+    rv = np.where(mask, T.v - glints[..., 1], 0.0)
+    Ju = [np.where(mask, a, 0.0) for a in T.row_u]
+    Jv = [np.where(mask, a, 0.0) for a in T.row_v]
+    B = mask.shape[0]
+    JtJ = np.empty((B, 3, 3))
+    for i in range(3):
+        for j in range(i, 3):
+            JtJ[:, i, j] = JtJ[:, j, i] = np.add.reduce(Ju[i] * Ju[j] + Jv[i] * Jv[j], axis=1)
+    Jtr = np.stack([np.add.reduce(Ju[i] * ru + Jv[i] * rv, axis=1) for i in range(3)], -1)
+    cost = np.add.reduce(ru * ru + rv * rv, axis=1)
     R = problem.camera.rotation
-    JtJ, Jtr = R.T @ (Jt @ J) @ R, (Jt @ r[..., None])[..., 0] @ R
+    JtJ, Jtr = R.T @ JtJ @ R, Jtr @ R
     if model == "orbit":
         D = _orbit_derivative(problem, x)
         Dt = D.transpose(0, 2, 1)
         JtJ, Jtr = Dt @ JtJ @ D, (Dt @ Jtr[..., None])[..., 0]
-    return np.einsum("bi,bi->b", r, r), JtJ, Jtr
+    return cost, JtJ, Jtr
 
 
 def _prepare(glints_px, mask, n_lights, p):

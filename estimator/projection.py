@@ -30,6 +30,7 @@ Everything is vectorised over lights and over a batch of cornea positions.
 
 from __future__ import annotations
 
+from types import SimpleNamespace
 from typing import NamedTuple
 
 import numpy as np
@@ -514,15 +515,46 @@ def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, 
         raise ValueError("cornea_axis and cap_cos_min must be given together")
     if frame not in ("world", "camera"):
         raise ValueError(f"frame must be 'world' or 'camera', got {frame!r}")
-    # Everything in the camera frame, where the pinhole Jacobian rows are f/Z (1, 0, -X/Z) and
-    # f/Z (0, 1, -Y/Z); derivatives with respect to world positions are those times R.
+    R = camera.rotation
+    T = _jacobian_terms(camera, center, cornea_radius, lights, axis, cap_cos_min)
+    shape = T.shape
+    glints = _stack((T.u, T.v))
+    visible = np.broadcast_to(T.visible, shape)
+    R_out = R if frame == "world" else None
+    d_center = _rows_to_world(shape, R_out, T.row_u, T.row_v)
+    if not radius_and_lights:
+        return glints, visible, d_center, None, None
+    d_radius = np.empty(shape + (2,))
+    d_radius[..., 0] = T.fxz * (T.nx - T.xz * T.nz - T.b_tn * T.pt_x)
+    d_radius[..., 1] = T.fyz * (T.ny - T.yz * T.nz - T.b_tn * T.pt_y)
+    l_t, l_k = T.rr * T.inv_dw * T.inv_g, T.rr * T.inv_dw * T.inv_qk
+    n, t, k = (T.nx, T.ny, T.nz), T.t, T.k
+    w_perp = [T.sin_i * a + T.cos_i * b for a, b in zip(n, t)]
+    rows = []
+    for f, p_t, p_k in ((T.fxz, T.pt_x, T.pk_x), (T.fyz, T.pt_y, T.pk_y)):
+        s_t, s_k = f * l_t * p_t, f * l_k * p_k
+        rows.append(tuple(s_t * a + s_k * b for a, b in zip(w_perp, k)))
+    return glints, visible, d_center, d_radius, _rows_to_world(shape, R_out, *rows)
+
+
+def _jacobian_terms(camera: Camera, center, radius, lights, axis=None, cap_cos_min=None,
+                    with_visibility: bool = True) -> SimpleNamespace:
+    """Glints and the camera-frame rows of d glint / d centre, as component arrays (...,  n),
+    with the intermediate terms the radius and light derivatives reuse.
+
+    Everything is in the camera frame, where the pinhole Jacobian rows are f/Z (1, 0, -X/Z) and
+    f/Z (0, 1, -Y/Z); derivatives with respect to world positions are those times R. A cornea
+    fit needs only these rows' sums over glints, so it takes them from here unassembled."""
     R = camera.rotation
     c_loc, L_loc = _to_local(camera.position_m, R, center, lights)
-    sol = _solve_local(c_loc, cornea_radius, L_loc, "newton")
-    u, v, iz, visible = _visibility_local(camera, sol, None if axis is None else _apply(R, axis), cap_cos_min)
-    shape = sol.ct.shape
-    glints = _stack((u, v))
-    visible = np.broadcast_to(visible, shape)
+    sol = _solve_local(c_loc, radius, L_loc, "newton")
+    if with_visibility:
+        u, v, iz, visible = _visibility_local(camera, sol, None if axis is None else _apply(R, axis), cap_cos_min)
+    else:
+        X, Y, Z = sol.point
+        with np.errstate(divide="ignore", invalid="ignore"):
+            iz = 1.0 / Z
+        u, v, visible = camera.fx_px * X * iz + camera.cx_px, camera.fy_px * Y * iz + camera.cy_px, None
     a, b, ct, st, c1, rr = sol.alpha, sol.beta, sol.ct, sol.st, sol.c1, sol.plane.r
     # Distances and incidence angle from the in-plane solution (scaled by r).
     inv_qa = 1.0 / np.sqrt(np.maximum(a * a - 2 * a * ct + 1, 1e-300))
@@ -549,23 +581,13 @@ def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, 
     m_t, m_k = 1 - 2 * inv_g, 1 - 2 * cos_i * inv_qk
     wx, wy, wz = m_t * tx + b_tn * nx, m_t * ty + b_tn * ny, m_t * tz + b_tn * nz
     qx, qy = m_k * pk_x, m_k * pk_y
-    R_out = R if frame == "world" else None
-    d_center = _rows_to_world(
-        shape, R_out,
-        (fxz * (1 - pt_x * wx - qx * kx), fxz * -(pt_x * wy + qx * ky), fxz * -(xz + pt_x * wz + qx * kz)),
-        (fyz * -(pt_y * wx + qy * kx), fyz * (1 - pt_y * wy - qy * ky), fyz * -(yz + pt_y * wz + qy * kz)))
-    if not radius_and_lights:
-        return glints, visible, d_center, None, None
-    d_radius = np.empty(shape + (2,))
-    d_radius[..., 0] = fxz * (nx - xz * nz - b_tn * pt_x)
-    d_radius[..., 1] = fyz * (ny - yz * nz - b_tn * pt_y)
-    l_t, l_k = rr * inv_dw * inv_g, rr * inv_dw * inv_qk
-    wpx, wpy, wpz = sin_i * nx + cos_i * tx, sin_i * ny + cos_i * ty, sin_i * nz + cos_i * tz
-    rows = []
-    for f, p_t, p_k in ((fxz, pt_x, pk_x), (fyz, pt_y, pk_y)):
-        s_t, s_k = f * l_t * p_t, f * l_k * p_k
-        rows.append((s_t * wpx + s_k * kx, s_t * wpy + s_k * ky, s_t * wpz + s_k * kz))
-    return glints, visible, d_center, d_radius, _rows_to_world(shape, R_out, *rows)
+    row_u = (fxz * (1 - pt_x * wx - qx * kx), fxz * -(pt_x * wy + qx * ky), fxz * -(xz + pt_x * wz + qx * kz))
+    row_v = (fyz * -(pt_y * wx + qy * kx), fyz * (1 - pt_y * wy - qy * ky), fyz * -(yz + pt_y * wz + qy * kz))
+    return SimpleNamespace(
+        shape=sol.ct.shape, u=u, v=v, visible=visible, row_u=row_u, row_v=row_v, rr=rr,
+        nx=nx, ny=ny, nz=nz, t=(tx, ty, tz), k=(kx, ky, kz), xz=xz, yz=yz, fxz=fxz, fyz=fyz,
+        pt_x=pt_x, pt_y=pt_y, pk_x=pk_x, pk_y=pk_y, b_tn=b_tn, sin_i=sin_i, cos_i=cos_i,
+        inv_dw=inv_dw, inv_g=inv_g, inv_qk=inv_qk)
 
 
 def _rows_to_world(shape, R, row_u, row_v):
