@@ -377,8 +377,9 @@ def detect_glints(frame, setup: Setup, frame_index: int = 0,
 
     # 1-2: background and threshold (shot noise: the threshold rises with the background).
     top = cv2.morphologyEx(img, cv2.MORPH_TOPHAT, _line_kernel(params.background_kernel_px))
-    t = top[::_NOISE_STEP, ::_NOISE_STEP].astype(np.float32).ravel()
-    noise = _NoiseModel.measure(t, img[::_NOISE_STEP, ::_NOISE_STEP].astype(np.float32).ravel() - t,
+    sample = np.float32 if img.dtype.kind == "f" else np.int64
+    t = top[::_NOISE_STEP, ::_NOISE_STEP].astype(sample).ravel()
+    noise = _NoiseModel.measure(t, img[::_NOISE_STEP, ::_NOISE_STEP].astype(sample).ravel() - t,
                                 params)
     # Compare in the image's own type: a Python float would cast the whole frame to float64.
     low = noise.lowest_threshold
@@ -527,29 +528,17 @@ class _NoiseModel:
 
     @classmethod
     def measure(cls, t: np.ndarray, level: np.ndarray, params: DetectionParams) -> "_NoiseModel":
-        """From the top-hat ``t`` (>= 0) and level of a pixel subsample, (m,) float32.
+        """From the top-hat ``t`` (>= 0) and level of a pixel subsample, (m,) int64 (integer
+        frames) or float32.
 
         A pixel falls in the bin between the quantiles of level around it (one whose level
-        equals a quantile, in the bin above). Medians come from one sort of keys bin * scale +
-        value with scale above every value: sorted by bin, then by value (np.median's overhead
-        is 5x the work)."""
-        m = level.size
-        ranked = np.sort(level)
-        b = np.searchsorted(ranked[(np.array(cls.QUANTILES[1:-1]) * m).astype(int)], level,
-                            side="right")
-        size = np.bincount(b, minlength=len(cls.QUANTILES) - 1)
-        mid = np.cumsum(size) - size + size // 2
-        full = size > 0
-        bins = np.arange(size.size)
-        b_sorted = np.repeat(bins, size)
-        scale = 2.0 * (float(t.max()) + 1.0)
-        x = np.sort(b * scale + t) - b_sorted * scale  # t by bin, then by value
-        floors = x[mid]
-        dev = np.abs(x - floors[b_sorted])
-        scale = 2.0 * (float(dev.max()) + 1.0)
-        sigmas = 1.4826 * (np.sort(b_sorted * scale + dev)[mid] - bins * scale)
-        levels = ranked[mid].astype(np.float64)
-        floors, sigmas, levels = floors[full], sigmas[full], levels[full]
+        equals a quantile, in the bin above). Integers are counted, floats sorted; both take
+        the element of rank size // 2 as the median, so an integer-valued float frame gives
+        the same model as the integer frame."""
+        ranks = (np.array(cls.QUANTILES[1:-1]) * level.size).astype(int)
+        stats = _bin_medians_counted if t.dtype.kind in "iu" else _bin_medians_sorted
+        floors, mads, levels, full, typical = stats(t, level, ranks)
+        floors, sigmas, levels = floors[full], 1.4826 * mads[full], levels[full]
         sigmas = np.maximum.accumulate(np.maximum(sigmas, params.min_noise_dn))
         # Bins of one level (a large flat dark area) collapse into one point, the worst.
         keep = np.append(levels[1:] > levels[:-1] + 1e-6, True)
@@ -558,7 +547,6 @@ class _NoiseModel:
         if levels.size > 1:
             slope = max(float((sigmas[-1] - sigmas[-2]) / (levels[-1] - levels[-2])), 0.0)
         k = params.threshold_sigma
-        typical = float(ranked[m // 2])
         extra = slope * max(typical - levels[-1], 0.0)
         return cls(levels, floors, sigmas, k, slope, float((floors + k * sigmas).min()),
                    float(np.interp(typical, levels, sigmas)) + extra,
@@ -576,6 +564,65 @@ class _NoiseModel:
     def threshold(self, level):
         return (np.interp(level, self.levels, self.floors + self.k * self.sigmas)
                 + self.k * self._extra(level))
+
+
+def _bin_medians_sorted(t, level, ranks):
+    """Per level bin (``ranks``: the ranks of level that bound the bins): median of t, median
+    of |t - that median| and median level, whether the bin holds any pixel, and the median
+    level overall. One sort of keys bin * scale + value, scale above every value, orders by
+    bin then value (np.median's overhead is 5x the work)."""
+    sorted_level = np.sort(level)
+    b = np.searchsorted(sorted_level[ranks], level, side="right")
+    size = np.bincount(b, minlength=ranks.size + 1)
+    mid = np.cumsum(size) - size + size // 2
+    bins = np.arange(size.size)
+    b_sorted = np.repeat(bins, size)
+    scale = 2.0 * (float(t.max()) + 1.0)
+    x = np.sort(b * scale + t) - b_sorted * scale
+    floors = x[mid]
+    dev = np.abs(x - floors[b_sorted])
+    scale = 2.0 * (float(dev.max()) + 1.0)
+    mads = np.sort(b_sorted * scale + dev)[mid] - bins * scale
+    return (floors, mads, sorted_level[mid].astype(np.float64), size > 0,
+            float(sorted_level[level.size // 2]))
+
+
+#: Histogram length of :func:`_bin_medians_counted` (DN): the noise floor and MAD of the
+#: top-hat sit far below it at any gain.
+_MEDIAN_CAP = 255
+
+
+def _bin_medians_counted(t, level, ranks):
+    """:func:`_bin_medians_sorted` for integers, by histograms: the value of rank r is the
+    first whose cumulative count exceeds r."""
+    low = int(level.min())
+    counts = np.cumsum(np.bincount(level - low))
+    at_rank = lambda r: np.searchsorted(counts, r, side="right")  # noqa: E731
+    bin_of_level = np.searchsorted(at_rank(ranks), np.arange(counts.size), side="right")
+    b = bin_of_level[level - low]
+    n_bins = ranks.size + 1
+    size = np.bincount(b, minlength=n_bins)
+    half = (size // 2)[:, None]
+
+    def medians(x):
+        # Values above the cap (glint pixels caught by the subsample) are counted at the cap:
+        # a median below it is unchanged, and one at it is redone uncapped.
+        width = min(int(x.max()), _MEDIAN_CAP) + 1
+        cum = np.cumsum(np.bincount(b * width + np.minimum(x, width - 1),
+                                    minlength=n_bins * width).reshape(n_bins, width), axis=1)
+        med = (cum <= half).sum(axis=1)
+        if width == _MEDIAN_CAP + 1 and (med >= _MEDIAN_CAP).any():
+            width = int(x.max()) + 1
+            cum = np.cumsum(np.bincount(b * width + x, minlength=n_bins * width)
+                            .reshape(n_bins, width), axis=1)
+            med = (cum <= half).sum(axis=1)
+        return med
+
+    floors = medians(t)
+    mads = medians(np.abs(t - floors[b]))
+    levels = at_rank(np.cumsum(size) - size + size // 2) + low
+    return (floors.astype(np.float64), mads.astype(np.float64), levels.astype(np.float64),
+            size > 0, float(at_rank(level.size // 2) + low))
 
 
 def _weights(px, img, top, noise: _NoiseModel, table: _RowTable, params: DetectionParams):
