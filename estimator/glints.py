@@ -7,7 +7,8 @@ every glint also carries the instant of the pulse that lit it. The pipeline is l
 a Raspberry Pi, one frame per 16.6 ms):
 
 1. Background: a morphological white top-hat, the image minus its opening by a horizontal line
-   of ``background_kernel_px`` pixels. The opening erases every bright structure narrower than
+   of ``background_kernel_px`` pixels (OpenCV, on the frame's own 8/16-bit or float32 type,
+   no float64 frame-sized temporary). The opening erases every bright structure narrower than
    the line (glints) and keeps everything wider: skin, sclera, iris, pupil and lid edges, linear
    gradients exactly, and the band structure. A horizontal line rather than a square because
    the bands are constant along rows: the V-shaped dips at band edges (Eq. (5)) cut the sclera
@@ -15,18 +16,20 @@ a Raspberry Pi, one frame per 16.6 ms):
    iris edge; a square does not fit in them and would leave them in the top-hat, a line does.
 2. Threshold: the top-hat floor plus ``threshold_sigma`` robust standard deviations (1.4826
    MAD), both from a 1-in-64 pixel subsample (the glints are too sparse to move them), in 7
-   bins of the local background level L (the opening) between quantiles of L, and
-   interpolated in L: noise grows
-   with brightness (shot noise), and a single global σ set by the dark pupil or the dark gaps
-   between bands would let the bright sclera's noise cross the threshold.
+   bins of the local background level L (the opening) between quantiles of L, interpolated
+   in L: noise grows with brightness (shot noise), and a single global σ set by the dark
+   pupil or the dark gaps between bands would let the bright sclera's noise cross the
+   threshold. The medians are counted (histograms) for integer frames and sorted for float
+   ones, with the same result. Pixels above the lowest threshold are found word by word,
+   then kept where the top-hat exceeds the threshold at their own level.
 3. Connected components (one ``cv2.connectedComponents``, 8-connected) on the bounding
    rectangle of the pixels above threshold; each component's area and box from the labels of
    its pixels (OpenCV's own statistics cost 4x the labelling).
 4. Per component, in one vectorised pass over the pixels of the component boxes grown by
-   ``centroid_margin_px`` (``np.bincount`` on the component index): the intensity-weighted
-   centroid of the top-hat above its floor (pixel-centre convention: (0, 0) is the centre of the
-   top-left pixel), with each row divided by the light it collected from the strobes,
-   Σ_j w_j(y) of :func:`estimator.banding.row_pulse_weights`, clamped below at
+   ``centroid_margin_px`` (one ``np.add.reduceat`` over each box's contiguous pixels): the
+   intensity-weighted centroid of the top-hat above its floor (pixel-centre convention: (0, 0)
+   is the centre of the top-left pixel), with each row divided by the light it collected from
+   the strobes, Σ_j w_j(y) of :func:`estimator.banding.row_pulse_weights`, clamped below at
    ``band_weight_floor``. A static glint is recorded as I(x, y) Σ_j w_j(y), so the division
    undoes the cut a band edge makes in the spot (uncorrected, a spot on the ramp of Eq. (5)
    moves toward the band's plateau by up to half a pixel).
@@ -38,7 +41,9 @@ a Raspberry Pi, one frame per 16.6 ms):
    :data:`BLENDED`. Thresholds and their reasons are in :class:`DetectionParams`.
 6. Band and time: the light of a spot is shared among the pulses in proportion to
    Σ_pixels I(x, y) w_j(y); the largest share names the strobe, and the time stamp is that
-   pulse's centre s_j + Δs / 2 (as in :func:`estimator.banding.row_strobe`).
+   pulse's centre s_j + Δs / 2 (as in :func:`estimator.banding.row_strobe`). The row weights,
+   and per pulse the running count of rows below its plateau (for :data:`CUT_BY_BAND_EDGE`),
+   are computed once per strobe phase and cached.
 
 Flags (bits of :attr:`GlintDetections.flags`): :data:`SATURATED` (a pixel of the spot reached
 full scale: the centroid is that of the flat top and its skirt, the intensity a lower bound),
