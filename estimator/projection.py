@@ -524,9 +524,7 @@ def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, 
     d_center = _rows_to_world(shape, R_out, T.row_u, T.row_v)
     if not radius_and_lights:
         return glints, visible, d_center, None, None
-    d_radius = np.empty(shape + (2,))
-    d_radius[..., 0] = T.fxz * (T.nx - T.xz * T.nz - T.b_tn * T.pt_x)
-    d_radius[..., 1] = T.fyz * (T.ny - T.yz * T.nz - T.b_tn * T.pt_y)
+    d_radius = _stack(_radius_rows(T))
     l_t, l_k = T.rr * T.inv_dw * T.inv_g, T.rr * T.inv_dw * T.inv_qk
     n, t, k = (T.nx, T.ny, T.nz), T.t, T.k
     w_perp = [T.sin_i * a + T.cos_i * b for a, b in zip(n, t)]
@@ -535,6 +533,12 @@ def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, 
         s_t, s_k = f * l_t * p_t, f * l_k * p_k
         rows.append(tuple(s_t * a + s_k * b for a, b in zip(w_perp, k)))
     return glints, visible, d_center, d_radius, _rows_to_world(shape, R_out, *rows)
+
+
+def _radius_rows(T: SimpleNamespace):
+    """d u / d r and d v / d r from :func:`_jacobian_terms` (dP/dr = n - (r D sin i / g) t)."""
+    return (T.fxz * (T.nx - T.xz * T.nz - T.b_tn * T.pt_x),
+            T.fyz * (T.ny - T.yz * T.nz - T.b_tn * T.pt_y))
 
 
 def _jacobian_terms(camera: Camera, center, radius, lights, axis=None, cap_cos_min=None,
