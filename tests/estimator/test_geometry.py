@@ -85,3 +85,10 @@ def test_look_at_is_opencv_frame():
         look_at_rotation([0, 0, 0], [0, 1, 0], up=[0, 1, 0])
     with pytest.raises(ValueError, match="coincides"):
         look_at_rotation([0, 0, 0], [0, 0, 0])
+
+
+@pytest.mark.parametrize("angle", [1e-8, 1e-12, 3e-15])
+def test_rotation_vector_keeps_tiny_angles(angle):
+    # Found by hypothesis: arccos of the trace rounds cos(1e-8) to 1 and returned a zero vector.
+    v = np.array([0.3, -0.4, 0.5]) / np.linalg.norm([0.3, -0.4, 0.5]) * angle
+    assert np.allclose(rotation_to_vector(rotation_from_vector(v)), v, rtol=1e-6, atol=0)
