@@ -5,19 +5,7 @@ import pytest
 
 from estimator.cornea import FitProblem, fit_cornea
 from estimator.projection import glint_jacobians, project_glints
-from estimator.scene import load_scene
 from scet_render.simulate import parse_targets, simulate_glints
-
-
-@pytest.fixture(scope="module")
-def setup():
-    return load_scene("paper_sim")
-
-
-@pytest.fixture(scope="module")
-def problem(setup):
-    return FitProblem(setup.camera, setup.lights_world_m, setup.eye.cornea_radius_m,
-                      setup.eye.rotation_center_m, setup.eye.cornea_offset_m)
 
 
 def test_glint_jacobians_match_finite_differences(setup):

@@ -5,24 +5,12 @@ import pytest
 
 from estimator.cornea import FitProblem, fit_cornea, fit_covariance
 from estimator.projection import glint_jacobians
-from estimator.scene import load_scene
 from scet_render.simulate import parse_targets, simulate_glints
 
 #: m: the LM stops on a step below 1e-7 m, which leaves <= 4e-10 m (estimator.cornea_solve).
 SAME_MINIMUM_M = 1e-8
 #: rad: the same on the orbit (1e-8 m over r_co = 4.25 mm).
 SAME_MINIMUM_RAD = 1e-8 / 4.25e-3
-
-
-@pytest.fixture(scope="module")
-def setup():
-    return load_scene("paper_sim")
-
-
-@pytest.fixture(scope="module")
-def problem(setup):
-    return FitProblem(setup.camera, setup.lights_world_m, setup.eye.cornea_radius_m,
-                      setup.eye.rotation_center_m, setup.eye.cornea_offset_m)
 
 
 @pytest.fixture(scope="module")
