@@ -52,8 +52,9 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from .calibration import Calibration
 from .cornea import FitProblem, fit_cornea
-from .eye import fick_angles, gaze_direction
+from .eye import Eye, fick_angles, gaze_direction
 from .projection import project_glints
 from .setup import Setup
 
@@ -208,6 +209,20 @@ class GlintMatch:
 
 
 @dataclass(frozen=True, slots=True)
+class _Prior:
+    """A prior on the eye rotation: mean (2,) rad, weight Σ⁻¹ (2, 2) in 1/rad² of the score,
+    and optionally (mean, σ² Σ⁻¹) for the refits (:func:`estimator.cornea.fit_cornea`)."""
+
+    mean: np.ndarray
+    weight: np.ndarray
+    fit: tuple | None = None
+
+    def distance2(self, angles) -> float:
+        d = np.asarray(angles, dtype=np.float64) - self.mean
+        return float(d @ self.weight @ d)
+
+
+@dataclass(frozen=True, slots=True)
 class _Hypothesis:
     x: np.ndarray  # fit parameters: angles (2,) or centre (3,)
     assign: np.ndarray  # (k,) light per detection, -1 unmatched
@@ -217,6 +232,20 @@ class _Hypothesis:
     score: float
     iterations: int
     fit_ok: bool
+
+
+def calibrated_eye(eye: Eye, calibration: Calibration | None) -> Eye:
+    """The eye a calibration describes: its corneal radius r_c and, where it has them, its eye
+    centre c_e and orbit radius r_co; the nominal ``eye``'s otherwise. The limbus depth scales
+    with r_c, which keeps the cap's angular extent (the nominal eye's is the only one known)."""
+    if calibration is None:
+        return eye
+    r_c = calibration.cornea_radius_m
+    center, offset = eye.rotation_center_m, eye.cornea_offset_m
+    if calibration.has_orbit:
+        center, offset = calibration.eye_center_m, calibration.orbit_radius_m
+    return Eye(center, r_c, offset, eye.limbus_depth_m * r_c / eye.cornea_radius_m,
+               eye.refractive_index)
 
 
 class GlintMatcher:
@@ -230,13 +259,22 @@ class GlintMatcher:
     setup : Setup
         Camera, eye (rotation centre, cornea offset and radius, limbus) and lights.
     params : MatchParams
+    calibration : Calibration, optional
+        Predict the glints from the calibrated geometry: the corrected lighting pose, r_c and,
+        where calibrated, c_e and r_co (:func:`calibrated_eye`). On the prototype the nominal
+        lighting pose is off by millimetres, a pixel or more of every predicted glint. Default:
+        the setup's nominal lights and eye.
     """
 
-    def __init__(self, setup: Setup, params: MatchParams = MatchParams()):
+    def __init__(self, setup: Setup, params: MatchParams = MatchParams(), *,
+                 calibration: Calibration | None = None):
         self.setup = setup
         self.params = params
-        eye = setup.eye
-        self.lights_world_m = np.asarray(setup.lights_world_m, dtype=np.float64)
+        self.eye = calibrated_eye(setup.eye, calibration)
+        eye = self.eye
+        nominal = np.asarray(setup.lights_world_m, dtype=np.float64)
+        self.lights_world_m = (nominal if calibration is None
+                               else calibration.lights_world_m(nominal))
         self.group = np.asarray(setup.lights.group_index)
         self.problem = FitProblem(setup.camera, self.lights_world_m, eye.cornea_radius_m,
                                   eye.rotation_center_m, eye.cornea_offset_m)
@@ -265,7 +303,7 @@ class GlintMatcher:
             On the corneal cap, seen and inside the image.
         """
         a = np.asarray(angles_rad, dtype=np.float64)
-        eye = self.setup.eye
+        eye = self.eye
         center = eye.cornea_center(a[..., 0], a[..., 1])
         axis = gaze_direction(a[..., 0], a[..., 1])
         return project_glints(self.setup.camera, center, eye.cornea_radius_m, self.lights_world_m,
@@ -275,7 +313,7 @@ class GlintMatcher:
         """Glints at fit parameters x (angles for "orbit", centre for "center")."""
         if self.params.model == "orbit":
             return self.predict(x)
-        eye = self.setup.eye
+        eye = self.eye
         axis = np.asarray(x, dtype=np.float64) - eye.rotation_center_m
         axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
         return project_glints(self.setup.camera, x, eye.cornea_radius_m, self.lights_world_m,
@@ -284,10 +322,10 @@ class GlintMatcher:
     def _x_from_angles(self, angles):
         if self.params.model == "orbit":
             return np.asarray(angles, dtype=np.float64)
-        return self.setup.eye.cornea_center(angles[0], angles[1])
+        return self.eye.cornea_center(angles[0], angles[1])
 
     def _angles_center(self, x):
-        eye = self.setup.eye
+        eye = self.eye
         if self.params.model == "orbit":
             return np.asarray(x, dtype=np.float64), eye.cornea_center(x[0], x[1])
         yaw, pitch = fick_angles(x - eye.rotation_center_m)
@@ -314,15 +352,7 @@ class GlintMatcher:
         -------
         GlintMatch
         """
-        g = np.asarray(glints_px, dtype=np.float64)
-        if g.ndim != 2 or g.shape[1] != 2:
-            raise ValueError(f"glints_px must have shape (k, 2), got {g.shape}")
-        if not np.isfinite(g).all():
-            raise ValueError("glints_px must be finite")
-        cam = self.setup.camera
-        lo, hi = (-0.5, cam.height_px - 0.5) if rows is None else (float(rows[0]), float(rows[1]))
-        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
-            raise ValueError(f"rows must be finite (first, last) with first <= last, got {rows!r}")
+        g, lo, hi = self._inputs(glints_px, rows)
         k = g.shape[0]
         if k == 0:
             return self._failure(0, TOO_FEW_GLINTS)
@@ -338,8 +368,9 @@ class GlintMatcher:
                 p.prior_window_deg)
             starts = [prior] + (self._coarse(g, lo, hi, near, p.prior_hypotheses)
                                 if p.prior_hypotheses else [])
+            weight = np.eye(2) / math.radians(p.prior_sigma_deg) ** 2
             from_prior = self._choose(g, lo, hi, starts, p.prior_gate_px, p.min_matches_prior,
-                                      prior)
+                                      _Prior(prior, weight))
             if from_prior is not None and from_prior.ok:
                 n = int(from_prior.matched.sum())
                 if n >= p.min_matches or n >= 0.5 * k:
@@ -354,9 +385,89 @@ class GlintMatcher:
             return min(good, key=lambda r: r.score)
         return results[-1] if results else self._failure(k, NO_HYPOTHESIS)
 
-    def _choose(self, g, lo, hi, starts, first_gate, min_matches, prior=None) -> GlintMatch | None:
+    def match_near(self, glints_px, prior_angles_rad, prior_cov_rad2, rows=None, *,
+                   min_matches: int = 1) -> GlintMatch:
+        """Identify the few detections of a sparse band from a prior alone (no coarse search).
+
+        A band with one or two glints cannot be identified cold (the chain of an arc shifted
+        by a light fits them as well), but it can from a prior on the eye rotation that is
+        tight compared with the angular step between neighbouring lights (~2° in
+        ``paper_sim``). The first assignment is gated at ``gate_px`` plus three prior standard
+        deviations of each predicted glint; every hypothesis (the prior's assignment and that
+        assignment shifted by ±1, ±2 lights along the arcs) is refitted with the prior (the
+        maximum a posteriori rotation) and scored with its squared Mahalanobis distance from
+        the prior mean; a runner-up within ``min_margin`` makes the band "ambiguous". Only the
+        ``"orbit"`` model carries an angle prior.
+
+        Parameters
+        ----------
+        glints_px : (k, 2) float
+        prior_angles_rad : (2,) float
+            Prior mean of the Fick (yaw, pitch).
+        prior_cov_rad2 : (2, 2) float
+            Prior covariance Σ (rad²), symmetric positive definite.
+        rows : (float, float), optional
+            As :meth:`match`.
+        min_matches : int
+            Fewest matched detections of an accepted identification: on the orbit one glint
+            (two coordinates) fixes the two angles.
+
+        Returns
+        -------
+        GlintMatch
+        """
+        p = self.params
+        if p.model != "orbit":
+            raise ValueError("match_near needs the 'orbit' model (its prior is on the angles)")
+        g, lo, hi = self._inputs(glints_px, rows)
+        mean = np.asarray(prior_angles_rad, dtype=np.float64).reshape(2)
+        cov = np.asarray(prior_cov_rad2, dtype=np.float64)
+        if cov.shape != (2, 2) or not np.isfinite(cov).all() or not np.isfinite(mean).all():
+            raise ValueError(f"prior_angles_rad (2,) and prior_cov_rad2 (2, 2) must be finite, "
+                             f"got shapes {mean.shape} and {cov.shape}")
+        w, V = np.linalg.eigh(0.5 * (cov + cov.T))
+        if not w.min() > 0:
+            raise ValueError("prior_cov_rad2 must be positive definite")
+        if min_matches < 1:
+            raise ValueError(f"min_matches must be >= 1, got {min_matches}")
+        k = g.shape[0]
+        if k == 0:
+            return self._failure(0, TOO_FEW_GLINTS)
+        weight = (V / w) @ V.T
+        prior = _Prior(mean, weight, (mean, p.noise_px ** 2 * weight))
+        # Prior SD of each predicted glint: the largest over lights of the projected covariance
+        # J Σ Jᵀ, J by central differences of the prediction (0.1 mrad: 0.01-0.1 px).
+        h = 1e-4
+        steps = np.array([[h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
+        pred, vis = self.predict(mean + steps)
+        J = np.stack([pred[0] - pred[1], pred[2] - pred[3]], axis=-1) / (2 * h)  # (n, 2, 2)
+        both = vis.all(axis=0)
+        spread = 0.0
+        if both.any():
+            C = J[both] @ cov @ np.swapaxes(J[both], 1, 2)
+            spread = float(np.sqrt(np.linalg.eigvalsh(C)[:, -1].max()))
+        gate = math.hypot(p.gate_px, 3.0 * spread)
+        result = self._choose(g, lo, hi, [mean], gate, min_matches, prior)
+        return result if result is not None else self._failure(k, NO_HYPOTHESIS)
+
+    def _inputs(self, glints_px, rows):
+        """Checked detections (k, 2) and band rows (lo, hi)."""
+        g = np.asarray(glints_px, dtype=np.float64)
+        if g.ndim != 2 or g.shape[1] != 2:
+            raise ValueError(f"glints_px must have shape (k, 2), got {g.shape}")
+        if not np.isfinite(g).all():
+            raise ValueError("glints_px must be finite")
+        cam = self.setup.camera
+        lo, hi = (-0.5, cam.height_px - 0.5) if rows is None else (float(rows[0]), float(rows[1]))
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+            raise ValueError(f"rows must be finite (first, last) with first <= last, got {rows!r}")
+        return g, lo, hi
+
+    def _choose(self, g, lo, hi, starts, first_gate, min_matches, prior: _Prior | None = None
+                ) -> GlintMatch | None:
         """Refine the starting poses, keep the lowest score; None when none matches anything.
-        With a prior, each hypothesis' score also pays for its distance from it."""
+        With a prior, each hypothesis' score also pays for its distance from it (squared
+        Mahalanobis distance of its angles), and its fit includes the prior where it has one."""
         if not starts:
             return None
         X = np.array([self._x_from_angles(a) for a in starts])
@@ -372,7 +483,8 @@ class GlintMatcher:
             shifted = [a for a in (self._shift(base, s) for s in steps) if (a >= 0).any()]
             first = [None] * len(starts) + shifted
             X = np.concatenate([X, np.repeat(X[:1], len(shifted), axis=0)])
-        refined = self._refine(g, lo, hi, X, first_gate, first)
+        fit_prior = None if prior is None else prior.fit
+        refined = self._refine(g, lo, hi, X, first_gate, first, fit_prior)
         if not refined:
             return None
         if prior is None:
@@ -384,9 +496,8 @@ class GlintMatcher:
                 refined += self._refine(g, lo, hi, np.array([h.x for h, _ in shifted]),
                                         self.params.gate_px, [a for _, a in shifted])
         else:
-            sigma = math.radians(self.params.prior_sigma_deg)
-            refined = [replace(h, score=h.score + float(
-                (((self._angles_center(h.x)[0] - prior) / sigma) ** 2).sum())) for h in refined]
+            refined = [replace(h, score=h.score + prior.distance2(self._angles_center(h.x)[0]))
+                       for h in refined]
         refined.sort(key=lambda h: h.score)
         best = refined[0]
         # Runner-up: the best hypothesis whose identities differ from the winner's.
@@ -486,9 +597,10 @@ class GlintMatcher:
         dist[r[real]] = np.sqrt(d2[r[real], c[real]])
         return assign, dist
 
-    def _fit(self, g, assigns, X):
+    def _fit(self, g, assigns, X, fit_prior=None):
         """Refit every hypothesis from X (H, p) with its matched detections, in one batched
-        call; returns (X, ok (H,))."""
+        call, with the Gaussian prior ``fit_prior`` (mean, information) where given; returns
+        (X, ok (H,))."""
         # Only the lights matched in some hypothesis enter the fit (a fraction of the rig:
         # the fit's cost is the projection of every light it carries).
         used = np.unique(np.concatenate([a[a >= 0] for a in assigns]))
@@ -499,7 +611,9 @@ class GlintMatcher:
             m = assign >= 0
             glints[h, slot[assign[m]]] = g[m]
         problem = replace(self.problem, lights_world_m=self.lights_world_m[used])
-        fit = fit_cornea(problem, glints, None, X, model=self.params.model)
+        mean, info = (None, None) if fit_prior is None else fit_prior
+        fit = fit_cornea(problem, glints, None, X, model=self.params.model, prior_mean=mean,
+                         prior_information=info)
         x_new = fit.angles_rad if self.params.model == "orbit" else fit.center_m
         ok = fit.ok & np.isfinite(x_new).all(axis=1)
         return np.where(ok[:, None], x_new, X), ok
@@ -511,10 +625,12 @@ class GlintMatcher:
         m = self.params.band_margin_px
         return pred, vis & (v >= lo - m) & (v <= hi + m), vis & (v >= lo + m) & (v <= hi - m)
 
-    def _refine(self, g, lo, hi, X, first_gate, first_assign=None) -> list[_Hypothesis]:
+    def _refine(self, g, lo, hi, X, first_gate, first_assign=None, fit_prior=None
+                ) -> list[_Hypothesis]:
         """Match -> refit -> re-predict -> re-match every start in X (H, p) until its
         assignment is stable; hypotheses that reach the same assignment are merged.
-        ``first_assign`` (H lists of (k,) lights) replaces the first round's matching."""
+        ``first_assign`` (H lists of (k,) lights) replaces the first round's matching;
+        ``fit_prior`` (mean, information) enters every refit."""
         p = self.params
         X = np.array(X, dtype=np.float64)
         H = X.shape[0]
@@ -550,7 +666,7 @@ class GlintMatcher:
                 to_fit.append(h)
                 assigns.append(assign)
             if to_fit:
-                X[to_fit], ok = self._fit(g, assigns, X[to_fit])
+                X[to_fit], ok = self._fit(g, assigns, X[to_fit], fit_prior)
                 fit_ok[to_fit] = ok
                 iters[to_fit] += 1
                 gate[np.array(to_fit)[ok]] = p.gate_px
@@ -568,7 +684,7 @@ class GlintMatcher:
         changed = [a for a in changed if (assigns[a] >= 0).any()]
         ok = fit_ok[keep].copy()
         if changed:
-            X[changed], ok_c = self._fit(g, [assigns[a] for a in changed], X[changed])
+            X[changed], ok_c = self._fit(g, [assigns[a] for a in changed], X[changed], fit_prior)
             ok[changed] = ok_c
         pred, cand, inside = self._candidates(X, lo, hi)
         sigma2 = p.noise_px ** 2
