@@ -11,6 +11,14 @@ sample's estimate (``chain=True``: the paper's warm start, Sec. 2.2.1; with ``so
 this is the paper's reference). A stream passes :attr:`GazeEstimates.resume_from` of one
 batch as the ``start`` of the next. A sample that cannot be estimated is NaN with a reason
 code (:data:`REASONS`); the batch always completes.
+
+Both take an optional Gaussian prior on the eye rotation (Fick angles about c_e, with a
+covariance in rad²), the tracker's estimate carried over from the previous band: the cornea is
+then fitted on its calibrated orbit with the prior (:func:`estimator.cornea.fit_cornea`,
+``prior_mean`` / ``prior_information``), which makes one glint enough. Polynomial gaze maps
+that orbit fit's cornea centre: its own model, the free centre (3 unknowns), is not determined
+by one glint, and a prior on the centre would have to take its shape (a thin disc tangent to
+the orbit, spread by the eye's rotation) from the same c_e and r_co.
 """
 
 from __future__ import annotations
@@ -20,7 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .calibration import Calibration, GazeMapping
-from .cornea import NON_FINITE, NOT_CONVERGED, OK, TOO_FEW_GLINTS, CorneaFit, FitProblem, fit_cornea
+from .cornea import (NON_FINITE, NOT_CONVERGED, OK, TOO_FEW_GLINTS, CorneaFit, FitProblem,
+                     fit_cornea, fit_covariance)
 from .eye import gaze_direction
 
 #: The optical axis does not reach the screen plane (it points away from it).
@@ -43,7 +52,8 @@ class GazeEstimates:
     cornea_center_m : (B, 3) float
         Fitted cornea centre.
     angles_rad : (B, 2) float
-        Fick (yaw, pitch) about c_e (geometric gaze only; NaN for polynomial gaze).
+        Fick (yaw, pitch) about c_e of orbit fits: geometric gaze, and polynomial gaze's
+        samples with a prior; NaN otherwise.
     rms_px : (B,) float
         RMS glint residual of the cornea fit.
     reason : (B,) str
@@ -77,7 +87,55 @@ class GazeEstimates:
         return (self.angles_rad if self.method == "geometric" else self.cornea_center_m)[idx[-1]].copy()
 
 
-def _fit(problem, glints_px, mask, start, model, solver, chain, lower, upper, max_iter):
+def orbit_problem(setup, calibration: Calibration) -> FitProblem:
+    """The calibrated ``"orbit"`` fit problem: corrected lights, r_c, c_e and r_co."""
+    if not calibration.has_orbit:
+        raise ValueError("the orbit model needs a calibration with the eye centre and orbit radius")
+    return FitProblem(setup.camera, calibration.lights_world_m(setup.lights_world_m),
+                      calibration.cornea_radius_m, calibration.eye_center_m,
+                      calibration.orbit_radius_m)
+
+
+def prior_information(prior_cov_rad2, noise_px: float) -> np.ndarray:
+    """(B, 2, 2) prior information σ² Σ⁻¹ (px² / rad²) of prior covariances Σ (B, 2, 2) rad²
+    for glint noise σ = ``noise_px``; NaN where Σ is not finite or not positive definite."""
+    cov = np.asarray(prior_cov_rad2, dtype=np.float64).reshape(-1, 2, 2)
+    out = np.full(cov.shape, np.nan)
+    fin = np.isfinite(cov).all(axis=(1, 2))
+    if fin.any():
+        w, V = np.linalg.eigh(cov[fin])
+        pd = w.min(axis=1) > 0
+        info = noise_px ** 2 * (V / np.where(w > 0, w, 1.0)[:, None, :]) @ np.swapaxes(V, 1, 2)
+        sub = np.full((fin.sum(), 2, 2), np.nan)
+        sub[pd] = info[pd]
+        out[fin] = sub
+    return out
+
+
+def posterior_covariance(problem: FitProblem, angles_rad, mask, prior_cov_rad2,
+                         noise_px: float) -> np.ndarray:
+    """(B, 2, 2) covariance of orbit fits at ``angles_rad`` (B, 2) from the glints in ``mask``
+    (B, n) and a Gaussian prior of covariance ``prior_cov_rad2`` (B, 2, 2; NaN = none):
+    (Σ_glints⁻¹ + Σ_prior⁻¹)⁻¹, Σ_glints = σ² (JᵀJ)⁻¹ (:func:`estimator.cornea.fit_covariance`).
+    Glints that leave an angle undetermined add nothing; NaN where neither term is finite."""
+    angles = np.asarray(angles_rad, dtype=np.float64).reshape(-1, 2)
+    cg = fit_covariance(problem, angles, mask, model="orbit", noise_px=noise_px)
+    cp = np.broadcast_to(np.asarray(prior_cov_rad2, dtype=np.float64), cg.shape)
+    info = np.zeros(cg.shape)
+    known = np.zeros(cg.shape[0], dtype=bool)
+    for c in (cg, cp):
+        fin = np.isfinite(c).all(axis=(1, 2))
+        if fin.any():
+            info[fin] += np.linalg.inv(c[fin])
+            known |= fin
+    out = np.full(cg.shape, np.nan)
+    if known.any():
+        out[known] = np.linalg.inv(info[known])
+    return out
+
+
+def _fit(problem, glints_px, mask, start, model, solver, chain, lower, upper, max_iter,
+         prior_mean=None, prior_information=None):
     """fit_cornea over a batch, from a shared start or chained sample to sample."""
     glints = np.asarray(glints_px, dtype=np.float64)
     if glints.ndim == 2:
@@ -85,6 +143,12 @@ def _fit(problem, glints_px, mask, start, model, solver, chain, lower, upper, ma
     if mask is None:
         mask = np.isfinite(glints).all(axis=-1)
     mask = np.asarray(mask, dtype=bool).reshape(glints.shape[:2])
+    if prior_mean is not None:
+        if chain:
+            raise ValueError("a prior per sample and chain=True exclude each other")
+        return fit_cornea(problem, glints, mask, start, model=model, solver=solver, lower=lower,
+                          upper=upper, max_iter=max_iter, prior_mean=prior_mean,
+                          prior_information=prior_information)
     if not chain:
         return fit_cornea(problem, glints, mask, start, model=model, solver=solver, lower=lower,
                           upper=upper, max_iter=max_iter)
@@ -121,8 +185,43 @@ def _estimates(fit, points, hits, method, angles, miss_reason=MISSES_SCREEN):
     return GazeEstimates(points, fit.center_m, angles, fit.rms_px, reason.astype(str), method)
 
 
+def _prior_args(prior_mean_rad, prior_cov_rad2, noise_px, B: int):
+    """(mean (B, 2), information (B, 2, 2), present (B,)) of an angle prior, or None."""
+    if prior_mean_rad is None and prior_cov_rad2 is None:
+        return None
+    if prior_mean_rad is None or prior_cov_rad2 is None or noise_px is None:
+        raise ValueError("prior_mean_rad, prior_cov_rad2 and noise_px must be given together")
+    if not noise_px > 0:
+        raise ValueError(f"noise_px must be positive, got {noise_px!r}")
+    mean = np.asarray(prior_mean_rad, dtype=np.float64)
+    cov = np.asarray(prior_cov_rad2, dtype=np.float64)
+    if mean.shape not in ((2,), (B, 2)) or cov.shape not in ((2, 2), (B, 2, 2)):
+        raise ValueError(f"prior_mean_rad must have shape ({B}, 2) and prior_cov_rad2 "
+                         f"({B}, 2, 2), got {mean.shape} and {cov.shape}")
+    mean = np.broadcast_to(mean, (B, 2))
+    info = prior_information(np.broadcast_to(cov, (B, 2, 2)), noise_px)
+    present = np.isfinite(mean).all(axis=1) & np.isfinite(info).all(axis=(1, 2))
+    return mean, info, present
+
+
+def _batch(glints_px) -> int:
+    return 1 if np.ndim(glints_px) == 2 else int(np.shape(glints_px)[0])
+
+
+def _orbit_fit(problem, glints_px, mask, start, chain, solver, max_iter, prior):
+    lim = np.full(2, ANGLE_BOUND_RAD)
+    if prior is None:
+        return _fit(problem, glints_px, mask, start, "orbit", solver, chain, -lim, lim, max_iter)
+    mean, info, present = prior
+    x0 = np.where(present[:, None], mean, np.broadcast_to(np.asarray(start, np.float64), mean.shape))
+    return _fit(problem, glints_px, mask, x0, "orbit", solver, False, -lim, lim, max_iter,
+                prior_mean=mean, prior_information=info)
+
+
 def geometric_gaze(setup, calibration: Calibration, glints_px, mask=None, *, start=(0.0, 0.0),
-                   chain: bool = False, solver: str = "lm", max_iter: int = 50) -> GazeEstimates:
+                   chain: bool = False, solver: str = "lm", max_iter: int = 50,
+                   prior_mean_rad=None, prior_cov_rad2=None,
+                   noise_px: float | None = None) -> GazeEstimates:
     """Geometric gaze estimation (Sec. 2.2.1): cornea on its orbit, optical axis to the screen.
 
     Parameters
@@ -141,13 +240,20 @@ def geometric_gaze(setup, calibration: Calibration, glints_px, mask=None, *, sta
         Start each sample from the previous sample's estimate (the paper's warm start) instead of
         fitting the batch at once from ``start``.
     solver : {"lm", "trf"}
+    prior_mean_rad : (B, 2) or (2,) float, optional
+        Gaussian prior on the Fick angles (mean); a sample whose mean or covariance is not
+        finite has none. Samples with a prior start from its mean.
+    prior_cov_rad2 : (B, 2, 2) or (2, 2) float, optional
+        Its covariance Σ (rad²).
+    noise_px : float, optional
+        Glint noise σ (px per axis) that weighs the prior against the glints (information
+        σ² Σ⁻¹); required with a prior.
     """
     if not calibration.has_orbit:
         raise ValueError("geometric gaze needs a calibration with the eye centre and orbit radius")
-    problem = FitProblem(setup.camera, calibration.lights_world_m(setup.lights_world_m),
-                         calibration.cornea_radius_m, calibration.eye_center_m, calibration.orbit_radius_m)
-    lim = np.full(2, ANGLE_BOUND_RAD)
-    fit = _fit(problem, glints_px, mask, start, "orbit", solver, chain, -lim, lim, max_iter)
+    problem = orbit_problem(setup, calibration)
+    prior = _prior_args(prior_mean_rad, prior_cov_rad2, noise_px, _batch(glints_px))
+    fit = _orbit_fit(problem, glints_px, mask, start, chain, solver, max_iter, prior)
     points, hits = screen_intersection(calibration.eye_center_m,
                                        gaze_direction(fit.angles_rad[:, 0], fit.angles_rad[:, 1]),
                                        setup.screen.z_m)
@@ -170,7 +276,8 @@ def fit_cornea_centers(setup, calibration: Calibration, glints_px, mask=None, *,
 
 def polynomial_gaze(setup, calibration: Calibration, glints_px, mask=None, *, mapping="eq1_25",
                     distance=None, start=None, chain: bool = False, solver: str = "lm",
-                    max_iter: int = 50) -> GazeEstimates:
+                    max_iter: int = 50, prior_mean_rad=None, prior_cov_rad2=None,
+                    noise_px: float | None = None) -> GazeEstimates:
     """Polynomial gaze estimation (Sec. 2.2.2): cornea centre, then a calibrated mapping.
 
     Parameters
@@ -184,6 +291,10 @@ def polynomial_gaze(setup, calibration: Calibration, glints_px, mask=None, *, ma
         Distance-sensor readings d_a, required by ``quadratic_da`` mappings (Sec. 3.3.1).
     start : (3,) float, optional
         Initial cornea centre; default the nominal eye's at primary position (the paper's).
+    prior_mean_rad, prior_cov_rad2, noise_px
+        As :func:`geometric_gaze`. A sample with a prior gets its cornea centre from the orbit
+        fit with the prior (the calibration's c_e and r_co; module docstring), the others
+        from the free-centre fit.
     """
     if isinstance(mapping, str):
         if mapping not in calibration.mappings:
@@ -192,8 +303,19 @@ def polynomial_gaze(setup, calibration: Calibration, glints_px, mask=None, *, ma
         mapping = calibration.mappings[mapping]
     if not isinstance(mapping, GazeMapping):
         raise ValueError(f"mapping must be a GazeMapping or its name, got {type(mapping).__name__}")
-    fit = fit_cornea_centers(setup, calibration, glints_px, mask, start=start, chain=chain, solver=solver,
-                             max_iter=max_iter)
+    prior = _prior_args(prior_mean_rad, prior_cov_rad2, noise_px, _batch(glints_px))
+    if prior is not None and prior[2].any():
+        if not calibration.has_orbit:
+            raise ValueError("a prior on the eye rotation needs a calibration with the eye "
+                             "centre and orbit radius")
+        fit = _merge(prior[2],
+                     _orbit_fit(orbit_problem(setup, calibration), glints_px, mask, (0.0, 0.0),
+                                False, solver, max_iter, prior),
+                     fit_cornea_centers(setup, calibration, glints_px, mask, start=start,
+                                        chain=chain, solver=solver, max_iter=max_iter))
+    else:
+        fit = fit_cornea_centers(setup, calibration, glints_px, mask, start=start, chain=chain,
+                                 solver=solver, max_iter=max_iter)
     features = fit.center_m
     if mapping.n_features == 4:
         if distance is None:
@@ -204,5 +326,13 @@ def polynomial_gaze(setup, calibration: Calibration, glints_px, mask=None, *, ma
         features = np.column_stack([features, d])
     xy = mapping.predict(features)
     points = np.column_stack([xy, np.full(len(xy), setup.screen.z_m)])
-    return _estimates(fit, points, np.isfinite(xy).all(axis=1), "polynomial", np.full((len(xy), 2), np.nan),
+    return _estimates(fit, points, np.isfinite(xy).all(axis=1), "polynomial", fit.angles_rad,
                       miss_reason=NON_FINITE)
+
+
+def _merge(take_first, first: CorneaFit, second: CorneaFit) -> CorneaFit:
+    """Per sample, ``first``'s result where ``take_first`` (B,) else ``second``'s."""
+    def pick(a, b):
+        m = np.asarray(take_first).reshape((-1,) + (1,) * (np.ndim(a) - 1))
+        return np.where(m, a, b)
+    return CorneaFit(*(pick(getattr(first, n), getattr(second, n)) for n in CorneaFit.__slots__))

@@ -7,9 +7,16 @@ prototype). Per frame:
 2. Glints are grouped by strobe; every band the banding model says lights visible rows
    (:func:`estimator.banding.band_layout`) gives one sample, glints or not.
 3. :class:`estimator.matching.GlintMatcher` identifies the band's glints, from the previous
-   sample's eye rotation as prior (cold search for the first sample and after a failure).
+   sample's eye rotation as prior (cold search for the first sample and after a failure). The
+   matcher predicts glints from the calibrated geometry (lighting pose, r_c, c_e, r_co).
 4. The cornea is fitted to the identified glints and mapped to the screen
    (:func:`estimator.gaze.polynomial_gaze` or :func:`estimator.gaze.geometric_gaze`).
+5. Sparse bands (fewer than :data:`MIN_GLINTS` glints, or whose identification failed) borrow
+   from the previous sample when it is recent (:class:`BandPrior`): its eye rotation, with a
+   covariance grown by the motion model, is a Gaussian prior for identifying the few glints
+   (:meth:`estimator.matching.GlintMatcher.match_near`) and for the orbit fit, which one glint
+   then determines (the "ours + prior" rows of ``reports/paper-reproduction.md``). Such samples
+   carry ``prior_assisted=True``. A band without any glint stays NaN: no sample is invented.
 
 Each sample carries the strobe instant s_j + Δs / 2 of its pulse (Sec. 2.3 of the SCET paper:
 the time of a band is its pulse's, not the frame's), shifted by the frame's measured start
@@ -30,7 +37,8 @@ Folders (rendered datasets, or prototype captures)::
 
 :func:`calibrate_from_folder` turns a folder of single-pulse calibration frames (every row lit
 by the same pulse, i.e. the same instant) into a :class:`~estimator.calibration.Calibration`;
-:func:`track_folder` writes ``samples.csv`` (format ``scet-samples``, version 1) atomically.
+:func:`track_folder` writes ``samples.csv`` (format ``scet-samples``, version 2: version 1
+plus the ``prior`` column) atomically; :func:`read_samples_csv` reads both versions.
 """
 
 from __future__ import annotations
@@ -51,7 +59,9 @@ import numpy as np
 
 from .banding import band_layout
 from .calibration import Calibration, calibrate_joint
-from .gaze import fit_cornea_centers, geometric_gaze, polynomial_gaze
+from .cornea import fit_covariance
+from .gaze import (fit_cornea_centers, geometric_gaze, orbit_problem, polynomial_gaze,
+                   posterior_covariance)
 from .glints import NO_BAND, DetectionParams, GlintDetections, detect_glints
 from .mapping import fit_gaze_mapping
 from .matching import GlintMatcher, MatchParams
@@ -60,7 +70,9 @@ from .setup import Setup
 log = logging.getLogger(__name__)
 
 TIMING_FORMAT, TIMING_VERSION = "scet-timing", 1
-SAMPLES_FORMAT, SAMPLES_VERSION = "scet-samples", 1
+SAMPLES_FORMAT, SAMPLES_VERSION = "scet-samples", 2
+#: Versions :func:`read_samples_csv` reads (version 1 has no ``prior`` column).
+SAMPLES_READABLE = (1, 2)
 TIMING_NAME, MANIFEST_NAME, LABELS_NAME, FRAMES_DIR = (
     "timing.json", "manifest.json", "labels.jsonl", "frames")
 METHODS = ("polynomial", "geometric")
@@ -74,6 +86,9 @@ SATURATED_FRAME = "saturated_frame"
 MISSING_FRAME = "missing_frame"
 INTERNAL_ERROR = "internal_error"
 RESIDUAL_TOO_LARGE = "residual_too_large"
+#: Prefix of the reason of a sparse band whose prior-assisted estimate failed too (e.g.
+#: "prior_ambiguous", "prior_residual_too_large"): a prior was there, it did not suffice.
+PRIOR_PREFIX = "prior_"
 
 #: A frame with more than this share of its pixels at full scale is not an eye image the
 #: detector can read (a lamp in view, a failed exposure): its samples fail with
@@ -91,6 +106,56 @@ MIN_GLINTS = 5
 MAX_RESIDUAL_PX = 1.0
 
 _FRAME_NAME = re.compile(r"^(\d+)\.png$")
+
+
+@dataclass(frozen=True, slots=True)
+class BandPrior:
+    """Motion model of the prior a sparse band borrows from the previous sample.
+
+    The previous sample's Fick angles θ_k (covariance Σ_k: its fit's, σ² (JᵀJ)⁻¹, or the
+    posterior of its own prior-assisted fit) predict the eye rotation at time t as a Gaussian of
+    mean θ_k and covariance Σ_k + (v_max (t - t_k))² I: the eye may have turned at up to
+    ``eye_speed_max_deg_s`` on each axis since. The speed bound enters as one SD, so a saccade
+    at full speed costs 1 in the squared Mahalanobis distance: the prior does not pull it back,
+    it only tells identities apart (at 16 pulses per frame, 1.04 ms between bands, SD 0.62°,
+    against the ~2° between neighbouring glints of an arc in ``paper_sim``).
+
+    Attributes
+    ----------
+    eye_speed_max_deg_s : float
+        Per-axis eye speed bound. Saccade peak speeds follow the main sequence up to ~500°/s
+        (Baloh et al. 1975, the asymptote :mod:`scet_render.motion` renders) and reach
+        600-700°/s in large saccades; 600°/s covers them.
+    max_sd_deg : float
+        A prior whose SD (largest axis) exceeds this is not used. The wider the prior, the
+        likelier a sparse band's chain shifted by one light (~2° away) or a blob passes for the
+        right identities: measured on 150 simulated bands of 1-3 glints with clutter
+        (paper_sim), 99.6 % of the claimed identities were right at 0.62° SD, 98.5 % at 0.8°,
+        97 % at 1.25°. In practice this is the prior's age limit: 1.25 ms at 600°/s, one band
+        period at 16 pulses per frame (1.04 ms), not at 8 (2.08 ms).
+    noise_px : float
+        Glint noise σ (px per axis) that weighs the prior against the glints and sizes the
+        samples' covariances: the matcher's (the upper end of the detector's error), which
+        errs on the side of a wider posterior.
+    """
+
+    eye_speed_max_deg_s: float = 600.0
+    max_sd_deg: float = 0.75
+    noise_px: float = 0.5
+
+    def __post_init__(self):
+        for name in ("eye_speed_max_deg_s", "max_sd_deg", "noise_px"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"BandPrior.{name} must be positive, got {getattr(self, name)!r}")
+
+    def predict(self, cov_rad2, elapsed_s: float):
+        """Covariance (2, 2) rad² after ``elapsed_s``, or None when its SD exceeds the limit."""
+        if not elapsed_s >= 0:
+            return None
+        grown = np.asarray(cov_rad2) + (math.radians(self.eye_speed_max_deg_s) * elapsed_s) ** 2 * np.eye(2)
+        if not np.isfinite(grown).all() or np.linalg.eigvalsh(grown)[-1] > math.radians(self.max_sd_deg) ** 2:
+            return None
+        return grown
 
 
 class TrackerInputError(ValueError):
@@ -120,6 +185,9 @@ class GazeSample:
         RMS residual of the cornea fit (NaN when failed).
     reason : str
         "ok" or why the sample is NaN.
+    prior_assisted : bool
+        The band borrowed the previous sample's estimate as a prior (:class:`BandPrior`): its
+        few glints were identified and fitted with it.
     """
 
     frame_index: int
@@ -132,6 +200,7 @@ class GazeSample:
     residual_px: float
     reason: str
     confidence: np.ndarray
+    prior_assisted: bool = False
 
     @property
     def ok(self) -> bool:
@@ -167,11 +236,15 @@ class Tracker:
         Name of the calibration's mapping used by polynomial gaze.
     detection : DetectionParams
     matching : MatchParams
+    prior : BandPrior or None
+        Motion model of the prior sparse bands borrow from the previous sample; None turns
+        prior assistance off. It needs the calibration's eye centre and orbit radius (without
+        them there is no prior either).
     """
 
     def __init__(self, setup: Setup, calibration: Calibration, method: str = "polynomial", *,
                  mapping: str = "eq1_25", detection: DetectionParams = DetectionParams(),
-                 matching: MatchParams = MatchParams()):
+                 matching: MatchParams = MatchParams(), prior: BandPrior | None = BandPrior()):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         if not isinstance(calibration, Calibration):
@@ -183,12 +256,22 @@ class Tracker:
                              f"(has {sorted(calibration.mappings)})")
         self.setup, self.calibration, self.method, self.mapping = setup, calibration, method, mapping
         self.detection = detection
-        self.matcher = GlintMatcher(setup, matching)
+        # Glints predicted from the calibrated geometry, not the nominal one: the lighting pose
+        # of the prototype is off by millimetres (a pixel or more per glint).
+        self.matcher = GlintMatcher(setup, matching, calibration=calibration)
         self.n_lights = setup.lights.count
+        self.prior = prior if calibration.has_orbit and matching.model == "orbit" else None
+        self._orbit = orbit_problem(setup, calibration) if self.prior is not None else None
         self.reset()
 
     def reset(self) -> None:
-        """Forget the previous sample (the next band is matched cold)."""
+        """Forget the previous sample (the next band is matched cold, and has no prior)."""
+        self._lose()
+        self._state = None
+
+    def _lose(self) -> None:
+        """A band failed: the next dense band is matched cold (the prior of sparse bands is
+        kept; it grows with its age)."""
         self._prior_angles = None
         self._start = None
 
@@ -242,40 +325,102 @@ class Tracker:
 
     def _band(self, det: GlintDetections, band, time_s: float) -> GazeSample:
         f, j = det.frame_index, band.pulse_index
-        d = det.of_strobe(j)
-        g = d.glints_px
-        if len(d) < MIN_GLINTS:
-            self.reset()
-            return _failed(f, j, time_s, "match_too_few_glints", g)
-        match = self.matcher.match(g, rows=(band.first_row, band.last_row),
-                                   prior_angles_rad=self._prior_angles)
+        g = det.of_strobe(j).glints_px
+        rows = (band.first_row, band.last_row)
+        if g.shape[0] < MIN_GLINTS:
+            sample = _failed(f, j, time_s, "match_too_few_glints", g)
+        else:
+            sample = self._dense(f, j, time_s, g, rows)
+            if sample.ok or sample.reason not in _IDENTITY_FAILURES:
+                return self._keep(sample)
+        self._lose()
+        return self._keep(self._assisted(f, j, time_s, g, rows, sample))
+
+    def _keep(self, sample: GazeSample) -> GazeSample:
+        if not sample.ok:
+            self._lose()
+        return sample
+
+    def _dense(self, f, j, time_s, g, rows) -> GazeSample:
+        """A band with enough glints, identified and fitted on its own."""
+        match = self.matcher.match(g, rows=rows, prior_angles_rad=self._prior_angles)
         if not match.ok:
-            self.reset()
             return _failed(f, j, time_s, f"match_{match.reason}", g)
         used = match.matched
         lights = match.light_index[used]
         if lights.size < MIN_GLINTS:
-            self.reset()
             return _failed(f, j, time_s, "too_few_glints", g[used], lights)
-        glints = np.full((1, self.n_lights, 2), np.nan)
-        glints[0, lights] = g[used]
+        glints = self._glints(g[used], lights)
         if self.method == "polynomial":
             est = polynomial_gaze(self.setup, self.calibration, glints, mapping=self.mapping,
                                   start=self._start)
         else:
             est = geometric_gaze(self.setup, self.calibration, glints,
                                  start=(0.0, 0.0) if self._start is None else self._start)
-        reason = str(est.reason[0])
-        if reason == "ok" and not est.rms_px[0] <= MAX_RESIDUAL_PX:
-            reason = RESIDUAL_TOO_LARGE
+        reason = self._reason(est)
         if reason != "ok":
-            self.reset()
             return _failed(f, j, time_s, reason, g[used], lights)
         self._prior_angles = match.angles_rad
         self._start = est.resume_from
+        if self._orbit is not None:
+            mask = np.isfinite(glints[..., 0])
+            cov = fit_covariance(self._orbit, match.angles_rad, mask, model="orbit",
+                                 noise_px=self.prior.noise_px)[0]
+            self._state = (time_s, match.angles_rad.copy(), cov)
         return GazeSample(f, j, time_s, est.screen_xy_m[0].copy(), est.cornea_center_m[0].copy(),
                           g[used], lights, float(est.rms_px[0]), "ok",
                           match.confidence[used].copy())
+
+    def _assisted(self, f, j, time_s, g, rows, failed: GazeSample) -> GazeSample:
+        """A sparse band (or one whose identification failed) with the previous sample's
+        estimate as prior; ``failed`` when there is no usable prior or no glint."""
+        if self._state is None or g.shape[0] == 0:
+            return failed
+        t0, mean, cov0 = self._state
+        cov = self.prior.predict(cov0, time_s - t0)
+        if cov is None:
+            return failed
+        match = self.matcher.match_near(g, mean, cov, rows=rows)
+        if not match.ok:
+            return replace(failed, reason=PRIOR_PREFIX + match.reason)
+        used = match.matched
+        lights = match.light_index[used]
+        glints = self._glints(g[used], lights)
+        prior = dict(prior_mean_rad=mean, prior_cov_rad2=cov, noise_px=self.prior.noise_px)
+        if self.method == "polynomial":
+            est = polynomial_gaze(self.setup, self.calibration, glints, mapping=self.mapping,
+                                  **prior)
+        else:
+            est = geometric_gaze(self.setup, self.calibration, glints, **prior)
+        reason = self._reason(est)
+        if reason != "ok":
+            return _failed(f, j, time_s, PRIOR_PREFIX + reason, g[used], lights)
+        angles = est.angles_rad[0]
+        post = posterior_covariance(self._orbit, angles, np.isfinite(glints[..., 0]), cov,
+                                    self.prior.noise_px)[0]
+        self._state = (time_s, angles.copy(), post)
+        self._prior_angles = angles.copy()
+        return GazeSample(f, j, time_s, est.screen_xy_m[0].copy(), est.cornea_center_m[0].copy(),
+                          g[used], lights, float(est.rms_px[0]), "ok",
+                          match.confidence[used].copy(), prior_assisted=True)
+
+    def _glints(self, glints_px, lights) -> np.ndarray:
+        out = np.full((1, self.n_lights, 2), np.nan)
+        out[0, lights] = glints_px
+        return out
+
+    @staticmethod
+    def _reason(est) -> str:
+        reason = str(est.reason[0])
+        if reason == "ok" and not est.rms_px[0] <= MAX_RESIDUAL_PX:
+            reason = RESIDUAL_TOO_LARGE
+        return reason
+
+
+#: Failures of a band's own identification, after which the band may still be identified with
+#: the prior (not a fit that failed on identified glints: those glints were the trouble).
+_IDENTITY_FAILURES = frozenset({"match_too_few_glints", "match_ambiguous", "match_no_hypothesis",
+                                "match_fit_failed", "too_few_glints"})
 
 
 # --------------------------------------------------------------------------- folders
@@ -553,7 +698,8 @@ def load_calibration(path) -> Calibration:
 
 
 SAMPLE_COLUMNS = ("frame", "strobe", "time_s", "screen_x_m", "screen_y_m", "cornea_x_m",
-                  "cornea_y_m", "cornea_z_m", "n_glints", "lights", "residual_px", "reason")
+                  "cornea_y_m", "cornea_z_m", "n_glints", "lights", "residual_px", "reason",
+                  "prior")
 
 
 @dataclass(frozen=True, slots=True)
@@ -617,7 +763,8 @@ def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "p
 
 
 def samples_csv(samples) -> str:
-    """CSV text of samples: a ``# scet-samples 1`` line, the header, one row per sample."""
+    """CSV text of samples: a ``# scet-samples 2`` line, the header, one row per sample
+    (``prior``: 1 for a prior-assisted sample, else 0)."""
     buf = io.StringIO()
     buf.write(f"# {SAMPLES_FORMAT} {SAMPLES_VERSION}\n")
     w = csv.writer(buf, lineterminator="\n")
@@ -627,19 +774,28 @@ def samples_csv(samples) -> str:
                     *(repr(float(v)) for v in s.screen_xy_m),
                     *(repr(float(v)) for v in s.cornea_center_m), s.n_glints,
                     ";".join(str(int(i)) for i in s.light_index), repr(float(s.residual_px)),
-                    s.reason])
+                    s.reason, int(s.prior_assisted)])
     return buf.getvalue()
 
 
 def read_samples_csv(path) -> list[dict]:
-    """Rows of a ``samples.csv`` (values as strings), after checking its format line."""
+    """Rows of a ``samples.csv`` (values as strings), after checking its format line.
+
+    Reads versions 1 and 2 (:data:`SAMPLES_READABLE`); rows of version 1, written before prior
+    assistance existed, get ``prior`` "0"."""
     path = Path(path)
     text = path.read_text(encoding="utf-8")
     first, _, rest = text.partition("\n")
-    if first.strip() != f"# {SAMPLES_FORMAT} {SAMPLES_VERSION}":
-        raise TrackerInputError(f"{path}: expected first line '# {SAMPLES_FORMAT} "
-                                f"{SAMPLES_VERSION}', got {first[:60]!r}")
-    return list(csv.DictReader(io.StringIO(rest)))
+    known = {f"# {SAMPLES_FORMAT} {v}": v for v in SAMPLES_READABLE}
+    version = known.get(first.strip())
+    if version is None:
+        raise TrackerInputError(f"{path}: expected first line '# {SAMPLES_FORMAT} <version>' "
+                                f"with version in {SAMPLES_READABLE}, got {first[:60]!r}")
+    rows = list(csv.DictReader(io.StringIO(rest)))
+    if version == 1:
+        for r in rows:
+            r["prior"] = "0"
+    return rows
 
 
 def _atomic_write(path: Path, data: bytes) -> None:

@@ -42,7 +42,8 @@ from estimator.gaze import geometric_gaze, polynomial_gaze, screen_intersection
 from estimator.metrics import angular_error_deg, summarize_errors
 from estimator.scene import load_scene
 from estimator.setup import Setup
-from estimator.tracker import (FRAMES_DIR, MAX_RESIDUAL_PX, RESIDUAL_TOO_LARGE, _atomic_write,
+from estimator.tracker import (FRAMES_DIR, MAX_RESIDUAL_PX, RESIDUAL_TOO_LARGE, BandPrior,
+                               _atomic_write,
                                calibrate_from_folder, samples_csv, save_calibration,
                                timing_document, track_folder)
 
@@ -115,6 +116,12 @@ class ValidationResult:
         (source, pulses_per_frame, method) -> (m,) per-sample errors (NaN = failed).
     reasons : dict
         (pulses_per_frame, method) -> {reason: count}.
+    assisted : dict
+        (pulses_per_frame, method) -> (m,) bool: prior-assisted samples
+        (:attr:`estimator.tracker.GazeSample.prior_assisted`).
+    assisted_identities : (int, int)
+        Right and all identified glints of the prior-assisted samples (included in
+        ``identity_rate``).
     timings_s : dict
         Wall time of each stage.
     report : Path
@@ -131,6 +138,14 @@ class ValidationResult:
     report: Path
     config: ValidationConfig = field(default=QUICK)
     feature_noise_by_ppf: dict = field(default_factory=dict)
+    assisted: dict = field(default_factory=dict)
+    assisted_identities: tuple = (0, 0)
+
+    def own_errors(self, method: str, pulses_per_frame: int) -> np.ndarray:
+        """Rendered errors of the samples estimated from their own glints alone (the others
+        NaN): what the feature-level simulation reproduces."""
+        err = self.errors_deg[("rendered", pulses_per_frame, method)]
+        return np.where(self.assisted[(pulses_per_frame, method)], np.nan, err)
 
     def row(self, source: str, method: str, pulses_per_frame: int | None = None) -> ValidationRow:
         """The row of ``source`` and ``method`` at ``pulses_per_frame`` (may be left out when
@@ -318,10 +333,11 @@ def _simulate(setup, calibration, method, mapping, samples, gaze_pts, noise_px, 
               repeats: int = SIM_REPEATS):
     """(repeats * m,) errors of the feature-level simulation: the same poses, the same lights
     per sample, Gaussian feature noise of ``noise_px``, the same calibration and estimator
-    (NaN where the rendered sample failed)."""
+    (NaN where the rendered sample failed, and for prior-assisted samples: one pose has no
+    previous band to take a prior from)."""
     from scet_render.simulate import simulate_glints
 
-    ok = np.array([s.ok for s in samples])
+    ok = np.array([s.ok and not s.prior_assisted for s in samples])
     err = np.full((repeats, len(samples)), np.nan)
     idx = np.flatnonzero(ok)
     if idx.size == 0:
@@ -346,11 +362,20 @@ def geometric_from(setup: Setup, calibration: Calibration, samples) -> list:
     """Geometric-gaze samples from the identified glints of (polynomial) tracker samples: the
     same detections and identities, the cornea fitted on its calibrated orbit (the
     :class:`estimator.tracker.Tracker` with ``method="geometric"`` gives the same samples up
-    to the solver's start)."""
+    to the solver's start). A prior-assisted sample's cornea centre already is that orbit fit
+    with its prior (:func:`estimator.gaze.polynomial_gaze`): its optical axis is the ray from
+    c_e through it."""
     out = []
     for s in samples:
         if not s.ok:
             out.append(s)
+            continue
+        if s.prior_assisted:
+            p, hits = screen_intersection(calibration.eye_center_m,
+                                          (s.cornea_center_m - calibration.eye_center_m)[None],
+                                          setup.screen.z_m)
+            out.append(replace(s, screen_xy_m=p[0, :2].copy()) if hits[0]
+                       else replace(s, screen_xy_m=np.full(2, np.nan), reason="misses_screen"))
             continue
         g = np.full((1, setup.lights.count, 2), np.nan)
         g[0, s.light_index] = s.glints_px
@@ -428,8 +453,9 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
     timings["calibrate"] = time.perf_counter() - t
     mapping = sorted(k for k in calibration.mappings if k.startswith("eq1"))[-1]
 
-    rows, errors, reasons, noise_by_ppf, tracked = [], {}, {}, {}, {}
+    rows, errors, reasons, noise_by_ppf, tracked, assisted = [], {}, {}, {}, {}, {}
     correct = total = 0
+    assisted_ids = (0, 0)
     resid_all = []
     timings["track"] = timings["simulate"] = 0.0
     for ppf, (sset, test_dir) in settings.items():
@@ -455,11 +481,17 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
             truth = _true_gaze_points(sset, keyed)
             est = np.array([[*s.screen_xy_m, sset.screen.z_m] for s in samples])
             err = angular_error_deg(est, truth, sset.eye.rotation_center_m)
-            c, n, resid = _identities(samples, by_key)
+            c, n, _ = _identities(samples, by_key)
             if method == "polynomial":  # the same identities serve both methods
                 correct, total = correct + c, total + n
-                resid_p.append(resid)
+                # e_f of the simulation, which covers the own-glint samples only.
+                resid_p.append(_identities([s for s in samples if not s.prior_assisted],
+                                           by_key)[2])
+                ca, na, _ = _identities([s for s in samples if s.prior_assisted], by_key)
+                assisted_ids = (assisted_ids[0] + ca, assisted_ids[1] + na)
             errors[("rendered", ppf, method)] = err
+            assisted[(ppf, method)] = np.array([s.ok and s.prior_assisted for s in samples],
+                                               dtype=bool)
             reasons[(ppf, method)] = {r: sum(s.reason == r for s in samples)
                                       for r in sorted({s.reason for s in samples})}
             rows.append(_row("rendered", ppf, method, err, c / n if n else math.nan))
@@ -480,9 +512,10 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
     noise_px = float(np.sqrt(np.mean(resid ** 2))) if resid.size else 0.0
     timings["total"] = sum(timings.values())
     report = _write_report(report_dir, settings, cfg, rows, noise_by_ppf, correct, total,
-                           reasons, timings, errors, tracked)
+                           reasons, timings, errors, tracked, assisted, assisted_ids)
     return ValidationResult(rows, noise_px, correct / total if total else math.nan, total,
-                            calibration, errors, reasons, timings, report, cfg, noise_by_ppf)
+                            calibration, errors, reasons, timings, report, cfg, noise_by_ppf,
+                            assisted, assisted_ids)
 
 
 # --------------------------------------------------------------------------- report
@@ -499,6 +532,24 @@ def table_markdown(rows) -> str:
         f"{100 * r.robustness:.1f} % | "
         + ("n/a (given)" if r.source == "simulated" else f"{100 * r.identity_rate:.2f} %") + " |\n"
         for r in rows)
+    return head + body
+
+
+def prior_table_markdown(errors: dict, assisted: dict) -> str:
+    """Rendered accuracy split by how each sample was estimated: from its band's own glints,
+    or prior-assisted (shares of all samples; accuracy over the estimated ones)."""
+    head = ("| pulses/frame | method | estimated from | samples | share of all | mean (SD) deg | "
+            "median deg | p95 deg |\n|---|---|---|---|---|---|---|---|\n")
+    body = ""
+    for (ppf, method), a in sorted(assisted.items()):
+        err = errors[("rendered", ppf, method)]
+        for name, sel in (("own glints", ~a), ("prior-assisted", a)):
+            e = err[sel & np.isfinite(err)]
+            stats = (f"{e.mean():.3f} ({e.std(ddof=1) if e.size > 1 else math.nan:.3f}) | "
+                     f"{np.median(e):.3f} | {np.percentile(e, 95):.3f}" if e.size
+                     else "- | - | -")
+            body += (f"| {ppf} | {method} | {name} | {e.size} | "
+                     f"{100 * e.size / max(err.size, 1):.1f} % | {stats} |\n")
     return head + body
 
 
@@ -571,7 +622,7 @@ def _plots(errors: dict, path: Path) -> None:
 
 
 def _write_report(report_dir: Path, settings, cfg, rows, noise_by_ppf, correct, total,
-                  reasons, timings, errors, tracked) -> Path:
+                  reasons, timings, errors, tracked, assisted, assisted_ids) -> Path:
     figs = report_dir / "figures"
     figs.mkdir(parents=True, exist_ok=True)
     shown = max(settings)  # the most bands per frame
@@ -586,9 +637,14 @@ def _write_report(report_dir: Path, settings, cfg, rows, noise_by_ppf, correct, 
         return next(r for r in rows if r.source == source and r.pulses_per_frame == p
                     and r.method == m).mean_deg
 
+    def own_mean(p, m):
+        e = errors[("rendered", p, m)][~assisted[(p, m)]]
+        e = e[np.isfinite(e)]
+        return float(e.mean()) if e.size else math.nan
+
     diff = "".join(
-        f"- {m}, {p} pulses/frame: rendered minus simulated mean error "
-        f"{mean('rendered', p, m) - mean('simulated', p, m):+.3f} deg\n"
+        f"- {m}, {p} pulses/frame: rendered (own glints) minus simulated mean error "
+        f"{own_mean(p, m) - mean('simulated', p, m):+.3f} deg\n"
         for p in settings for m in ("polynomial", "geometric"))
     strobes = "; ".join(
         f"{p} pulses/frame: period {1e3 * s.strobe.period_s:.4f} ms, pulse "
@@ -607,12 +663,20 @@ the others with the period locked to the frame, the scene's pulse width and the 
 Eq. (8), so the bands tile): {strobes}. Ground truth: the optical axis at each strobe instant
 (`labels.jsonl`). The feature-level simulation uses the same poses, the same identified lights
 per sample, the same calibration and Gaussian feature noise e_f of the same strobe setting (the
-RMS per-axis error of its rendered detections against the labelled glints).
+RMS per-axis error of the detections of its own-glint samples against the labelled glints).
 
 {table_markdown(rows)}
+Rendered samples by how they were estimated: from their band's own glints, or, for bands with
+too few glints to be identified alone, prior-assisted (the previous sample's eye rotation as a
+Gaussian prior whose covariance grows with the time since it, at up to
+{BandPrior().eye_speed_max_deg_s:.0f} deg/s per axis; `estimator.tracker.BandPrior`). The
+simulated rows cover own-glint samples only (one pose has no previous band to borrow from).
+
+{prior_table_markdown(errors, assisted)}
 Identified glints: {total}, with the right light: {correct}
 ({100 * correct / max(total, 1):.2f} %; right = within {IDENTITY_RADIUS_PX} px of that light's
-labelled glint).
+labelled glint). Of these, in prior-assisted samples: {assisted_ids[1]}, right
+{assisted_ids[0]}. The feature noise e_f is measured on the own-glint samples.
 
 {diff}
 Reasons (rendered):

@@ -156,3 +156,56 @@ def test_end_to_end_with_the_joint_calibration(setup, grid, noisy):
     # Measured 0.05 deg over 50 trials (the paper's own calibration gave 4.62 deg); 0.2 deg
     # bounds the trial-to-trial spread.
     assert acc.mean_deg < 0.2 and acc.n_nan == 0
+
+
+# --------------------------------------------------------------------------- priors
+
+
+def one_glint(obs, seed=4):
+    """Each sample's glints cut down to one visible glint (the middle one)."""
+    g = np.full(obs.glints_px.shape, np.nan)
+    for b in range(g.shape[0]):
+        vis = np.flatnonzero(obs.visible[b])
+        g[b, vis[vis.size // 2]] = obs.glints_px[b, vis[vis.size // 2]]
+    return g
+
+
+def test_a_prior_makes_one_glint_enough(setup, grid, noisy, truth):
+    """A prior 0.3° off the truth with 0.6° SD: one glint (0.5 px) per sample on the orbit."""
+    g = one_glint(noisy)
+    yaw, pitch = setup.eye.angles_toward(grid)
+    mean = np.column_stack([yaw, pitch]) + np.radians(0.3)
+    cov = np.eye(2) * np.radians(0.6) ** 2
+    est = geometric_gaze(setup, truth, g, prior_mean_rad=mean, prior_cov_rad2=cov, noise_px=0.5)
+    assert est.ok.all()
+    err = angular_error_deg(est.point_m, grid, setup.eye.rotation_center_m)
+    # One glint at 0.5 px pins the rotation to ~0.15°, far tighter than the prior's 0.6°.
+    assert np.median(err) < 0.25
+    assert not geometric_gaze(setup, truth, g[:, :, :] * np.nan, prior_mean_rad=mean,
+                              prior_cov_rad2=np.full((2, 2), np.nan), noise_px=0.5).ok.any()
+
+
+def test_polynomial_gaze_with_a_prior_maps_the_orbit_centre(setup, grid, noisy, truth):
+    c = fit_cornea_centers(setup, truth, noisy.glints_px).center_m
+    cal = truth.with_mappings(q=fit_gaze_mapping(c, grid, "quadratic"))
+    g = one_glint(noisy)
+    yaw, pitch = setup.eye.angles_toward(grid)
+    mean = np.column_stack([yaw, pitch])
+    cov = np.eye(2) * np.radians(0.6) ** 2
+    with_prior = polynomial_gaze(setup, cal, g, mapping="q", prior_mean_rad=mean,
+                                 prior_cov_rad2=cov, noise_px=0.5)
+    assert with_prior.ok.all() and np.isfinite(with_prior.angles_rad).all()
+    geo = geometric_gaze(setup, cal, g, prior_mean_rad=mean, prior_cov_rad2=cov, noise_px=0.5)
+    assert np.allclose(with_prior.cornea_center_m, geo.cornea_center_m, atol=1e-9)
+    # Without a prior one glint cannot fix the free centre (3 unknowns).
+    assert (polynomial_gaze(setup, cal, g, mapping="q").reason == TOO_FEW_GLINTS).all()
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    (dict(prior_mean_rad=(0.0, 0.0)), "together"),
+    (dict(prior_mean_rad=(0.0, 0.0), prior_cov_rad2=np.eye(2), noise_px=0.0), "positive"),
+    (dict(prior_mean_rad=np.zeros(3), prior_cov_rad2=np.eye(2), noise_px=0.5), "shape"),
+])
+def test_bad_priors(setup, noisy, truth, kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        geometric_gaze(setup, truth, noisy.glints_px[:2], **kwargs)

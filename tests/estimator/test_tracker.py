@@ -16,9 +16,9 @@ from estimator.calibration import Calibration, fit_gaze_mapping
 from estimator.gaze import fit_cornea_centers
 from estimator.scene import load_scene
 from estimator.tracker import (INTERNAL_ERROR, SATURATED_FRAME, UNREADABLE_FRAME,
-                               WRONG_FRAME_SIZE, Tracker, TrackerInputError, load_calibration,
-                               read_samples_csv, read_timing, save_calibration, timing_document,
-                               track_folder)
+                               WRONG_FRAME_SIZE, BandPrior, Tracker, TrackerInputError,
+                               load_calibration, read_samples_csv, read_timing, save_calibration,
+                               timing_document, track_folder)
 from scet_render.simulate import ground_truth_glints
 
 DT = None
@@ -40,11 +40,14 @@ def calibration(setup):
     return cal.with_mappings(eq1_25=fit_gaze_mapping(c, targets, "eq1", degenerate="min_norm"))
 
 
-def draw_frame(setup, frame, yaw, pitch, rng):
-    """A 10-bit banded frame of the eye at fixed (yaw, pitch)."""
+def draw_frame(setup, frame, yaw, pitch, rng, hide=()):
+    """A 10-bit banded frame of the eye at fixed (yaw, pitch), without the glints of the
+    lights in ``hide``."""
     H, W = setup.camera.height_px, setup.camera.width_px
     j, _, w = row_pulse_weights(setup.sensor, setup.strobe, frame)
     g, vis, _ = ground_truth_glints(setup, yaw, pitch)
+    vis = vis.copy()
+    vis[list(hide)] = False
     yy, xx = np.mgrid[0:H, 0:W]
     img = np.zeros((H, W))
     for (u, v), ok in zip(g, vis):
@@ -198,3 +201,108 @@ def test_a_failed_run_keeps_the_previous_csv(tmp_path, setup, calibration, frame
     with pytest.raises(TrackerInputError):
         track_folder(folder, setup, calibration, out)
     assert out.read_bytes() == before
+
+
+# --------------------------------------------------------------------------- calibrated geometry
+
+
+def test_the_matcher_predicts_from_the_calibrated_lighting_and_eye(setup, calibration):
+    from dataclasses import replace
+
+    from estimator.calibration import pose_correction
+
+    corr = pose_correction([0.0, 0.02, 0.0], [3e-3, 0.0, -1e-3], setup.lights_world_m.mean(axis=0))
+    cal = replace(calibration, lighting_correction=corr, cornea_radius_m=7.7e-3,
+                  orbit_radius_m=4.2e-3)
+    m = Tracker(setup, cal).matcher
+    assert np.allclose(m.lights_world_m, cal.lights_world_m(setup.lights_world_m))
+    assert m.eye.cornea_radius_m == 7.7e-3 and m.eye.cornea_offset_m == 4.2e-3
+    assert np.allclose(m.problem.lights_world_m, m.lights_world_m)
+
+
+# --------------------------------------------------------------------------- band prior
+
+
+def sparse_band_frame(setup, keep=2, seed=3):
+    """Frame 0 at the screen centre with one band cut down to ``keep`` glints, right after a
+    band with enough of its own: (frame, band position among the samples, kept lights)."""
+    yaw, pitch = (float(a[0]) for a in setup.eye.angles_toward(setup.screen.grid(1, 1)))
+    g, vis, _ = ground_truth_glints(setup, yaw, pitch)
+    bands = [b for b in band_layout(setup.sensor, setup.strobe, 0) if b.visible]
+    lights = [np.flatnonzero(vis & (g[:, 1] >= b.first_row) & (g[:, 1] <= b.last_row))
+              for b in bands]
+    k = next(i for i in range(1, len(bands)) if lights[i - 1].size >= 6 and lights[i].size > keep)
+    hide = lights[k][keep:]
+    img = draw_frame(setup, 0, yaw, pitch, np.random.default_rng(seed), hide=hide)
+    return img, k, lights[k][:keep]
+
+
+@pytest.mark.parametrize("method", ["polynomial", "geometric"])
+def test_a_sparse_band_borrows_the_previous_band(setup, calibration, method):
+    img, k, kept = sparse_band_frame(setup)
+    target = setup.screen.grid(1, 1)[0]
+    s = Tracker(setup, calibration, method).process(img, 0)[k]
+    assert s.ok and s.prior_assisted and sorted(s.light_index) == sorted(kept)
+    # Noiseless glints and the ground-truth calibration: exact to ~1 mm on the screen.
+    assert np.linalg.norm(s.screen_xy_m - target[:2]) < 2e-3
+    off = Tracker(setup, calibration, method, prior=None).process(img, 0)[k]
+    assert not off.ok and off.reason == "match_too_few_glints" and not off.prior_assisted
+
+
+def test_a_band_without_glints_stays_nan_despite_a_prior(setup, calibration):
+    img, k, _ = sparse_band_frame(setup, keep=0)
+    out = Tracker(setup, calibration).process(img, 0)
+    assert out[k - 1].ok
+    assert not out[k].ok and np.isnan(out[k].screen_xy_m).all() and not out[k].prior_assisted
+
+
+def test_the_prior_grows_with_its_age_and_expires():
+    p = BandPrior(eye_speed_max_deg_s=600.0, max_sd_deg=0.75)
+    c0 = np.eye(2) * np.radians(0.05) ** 2
+    one = p.predict(c0, 1.04e-3)  # one band period at 16 pulses per frame
+    assert np.allclose(np.sqrt(np.diag(one)), np.hypot(np.radians(0.05), np.radians(0.624)))
+    assert p.predict(c0, 2.08e-3) is None  # one band period at 8 pulses: too wide
+    assert p.predict(c0, -1e-3) is None
+    with pytest.raises(ValueError, match="eye_speed_max_deg_s"):
+        BandPrior(eye_speed_max_deg_s=0.0)
+
+
+def test_a_prior_does_not_smooth_a_saccade_away(setup):
+    """One glint, the eye 0.6° past the prior mean (600°/s for one band period): the fit
+    follows the glint, not the prior."""
+    from estimator.gaze import geometric_gaze
+
+    cal = Calibration.ground_truth(setup)
+    yaw, pitch = np.radians(5.0), np.radians(-3.0)
+    g, vis, _ = ground_truth_glints(setup, yaw, pitch)
+    one = np.full_like(g, np.nan)
+    i = np.flatnonzero(vis)[len(np.flatnonzero(vis)) // 2]
+    one[i] = g[i] + np.random.default_rng(0).normal(0.0, 0.3, 2)
+    prior = BandPrior()
+    cov = prior.predict(np.eye(2) * np.radians(0.05) ** 2, 1.04e-3)
+    mean = np.array([yaw - np.radians(0.6), pitch])
+    est = geometric_gaze(setup, cal, one[None], prior_mean_rad=mean, prior_cov_rad2=cov,
+                         noise_px=prior.noise_px)
+    err_deg = np.degrees(np.abs(est.angles_rad[0] - [yaw, pitch]))
+    # The glint's 0.3 px is ~0.1° of rotation; the prior pulls by less than that.
+    assert est.ok[0] and err_deg.max() < 0.15, err_deg
+
+
+def test_samples_csv_marks_prior_assisted_samples_and_reads_version_1(tmp_path, setup,
+                                                                      calibration):
+    from estimator.tracker import samples_csv
+
+    img, k, _ = sparse_band_frame(setup)
+    out = Tracker(setup, calibration).process(img, 0)
+    path = tmp_path / "s.csv"
+    path.write_text(samples_csv(out))
+    assert path.read_text().startswith("# scet-samples 2\n")
+    rows = read_samples_csv(path)
+    assert [r["prior"] for r in rows] == [str(int(s.prior_assisted)) for s in out]
+    assert rows[k]["prior"] == "1"
+    old = tmp_path / "v1.csv"
+    old.write_text("# scet-samples 1\nframe,strobe,reason\n0,3,ok\n")
+    assert read_samples_csv(old) == [{"frame": "0", "strobe": "3", "reason": "ok", "prior": "0"}]
+    (tmp_path / "v9.csv").write_text("# scet-samples 9\nframe\n")
+    with pytest.raises(TrackerInputError, match="v9.csv"):
+        read_samples_csv(tmp_path / "v9.csv")

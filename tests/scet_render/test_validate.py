@@ -93,11 +93,22 @@ def test_identities_match_the_labels(result):
 
 @pytest.mark.parametrize("method", ["polynomial", "geometric"])
 def test_rendered_accuracy_matches_the_feature_level_simulation(result, method):
+    # Samples from their own glints: the simulation has no previous band to borrow a prior from.
     for ppf in result.config.pulses_per_frame:
-        r = _median(result.errors_deg[("rendered", ppf, method)])
+        r = _median(result.own_errors(method, ppf))
         s = _median(result.errors_deg[("simulated", ppf, method)])
         assert abs(r - s) < RENDER_VS_SIM_DEG, (
             f"{method}, {ppf} pulses/frame: rendered {r:.3f} deg, simulated {s:.3f} deg")
+
+
+def test_prior_assisted_samples_are_reported_apart(result):
+    text = result.report.read_text()
+    assert "| prior-assisted |" in text and "| own glints |" in text
+    for (ppf, method), a in result.assisted.items():
+        err = result.errors_deg[("rendered", ppf, method)]
+        assert a.shape == err.shape and np.isfinite(err[a]).all()
+        rows = read_samples_csv(result.report.parent / f"samples_{method}_p{ppf}.csv")
+        assert [r["prior"] == "1" for r in rows] == a.tolist()
 
 
 def test_geometric_gaze_is_accurate_on_renders(result):
@@ -131,7 +142,7 @@ def test_quick_mode_end_to_end(tmp_path):
     _check_rows(res)
     for ppf in QUICK.pulses_per_frame:
         for method in METHODS:
-            r = _median(res.errors_deg[("rendered", ppf, method)])
+            r = _median(res.own_errors(method, ppf))
             s = _median(res.errors_deg[("simulated", ppf, method)])
             assert abs(r - s) < RENDER_VS_SIM_DEG, (ppf, method, r, s)
             assert res.row("rendered", method, ppf).valid > 0.3
