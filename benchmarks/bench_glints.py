@@ -3,7 +3,10 @@
 Detection: 640x480 10-bit banded frames of the paper_sim glints (Gaussian spots at their
 closed-form positions, every pulse's row weights, an eye-like background, shot and read noise),
 timed through :func:`estimator.glints.detect_glints`; the centroid error against the
-closed-form glints is printed alongside. Matching: bands as the tests build them (48 rows,
+closed-form glints is printed alongside. Two figures: per frame (cold: every frame measures
+its own noise model) and streaming (:class:`estimator.glints.GlintDetector` over the frames as
+one sequence, measuring the model every ``refresh_frames`` frames; timed over whole refresh
+cycles, so the measurement's cost is included once per cycle). Matching: bands as the tests build them (48 rows,
 0.3-0.5 px noise, 5-10 % dropped glints, 1-3 spurious blobs), through
 :meth:`estimator.matching.GlintMatcher.match` with a previous-sample prior and cold, on
 paper_sim and paper_sim_doubled, with the identity rates measured on them. Usage:
@@ -26,7 +29,13 @@ import numpy as np  # noqa: E402
 from scipy.special import erf  # noqa: E402
 
 from estimator.banding import row_pulse_weights  # noqa: E402
-from estimator.glints import BLENDED, CUT_BY_BAND_EDGE, IMAGE_EDGE, detect_glints  # noqa: E402
+from estimator.glints import (  # noqa: E402
+    BLENDED,
+    CUT_BY_BAND_EDGE,
+    IMAGE_EDGE,
+    GlintDetector,
+    detect_glints,
+)
 from estimator.matching import GlintMatcher  # noqa: E402
 from estimator.scene import load_scene  # noqa: E402
 from scet_render.simulate import ground_truth_glints, simulate_glints  # noqa: E402
@@ -54,47 +63,77 @@ def banded_frame(setup, glints_px, sigma_px, peak_dn, rng, frame_index=0):
     return np.clip(np.rint(img), 0, 1023).astype(np.uint16)
 
 
-def best_time(fn, seconds: float) -> float:
-    """Fastest call over ``seconds`` (the least disturbed by other load on the machine)."""
-    fn()
-    best, calls, end = float("inf"), 0, time.perf_counter() + seconds
-    while time.perf_counter() < end or calls < 3:
-        t = time.perf_counter()
+def best_times(fns, seconds: float) -> list[float]:
+    """Fastest call of each function over ``seconds``, calls alternated (other load on the
+    machine then disturbs them alike)."""
+    for fn in fns:
         fn()
-        best = min(best, time.perf_counter() - t)
+    best, calls, end = [float("inf")] * len(fns), 0, time.perf_counter() + seconds
+    while time.perf_counter() < end or calls < 3:
+        for i, fn in enumerate(fns):
+            t = time.perf_counter()
+            fn()
+            best[i] = min(best[i], time.perf_counter() - t)
         calls += 1
     return best
+
+
+def centroid_errors(det, g):
+    """Distances of the true glints to their nearest detections, for the spots neither on the
+    image edge nor blended, and which of those are cut by a band edge."""
+    d = np.linalg.norm(det.glints_px[None] - g[:, None], axis=-1)
+    i = d.argmin(axis=1)
+    plain = (det.flags[i] & (IMAGE_EDGE | BLENDED)) == 0
+    return d[np.arange(len(g)), i][plain], (det.flags[i][plain] & CUT_BY_BAND_EDGE) != 0
+
+
+def print_accuracy(label, results, n_frames):
+    err = np.concatenate([e for e, *_ in results])
+    cut = np.concatenate([c for _, c, *_ in results])
+    found = sum(n for *_, n, _ in results)
+    truth = sum(t for *_, t in results)
+    print(f"  {label}: {found} detections for {truth} glints; centroid error median "
+          f"{np.median(err[~cut]):.3f} px, max {err[~cut].max():.3f} px ({(~cut).sum()} clean), "
+          f"band-cut median {np.median(err[cut]):.3f} px, max {err[cut].max():.3f} px "
+          f"({cut.sum()})")
 
 
 def bench_detection(seconds: float, n_frames: int) -> None:
     setup = load_scene("paper_sim")
     rng = np.random.default_rng(1)
-    frames, errors = [], []
+    frames, truths, cold, stream = [], [], [], []
+    detector = GlintDetector(setup)
     for f in range(n_frames):
         g, vis, _ = ground_truth_glints(setup, rng.uniform(-0.3, 0.3), rng.uniform(-0.25, 0.15))
         g = g[vis]
         frame = banded_frame(setup, g, rng.uniform(0.6, 1.2, len(g)), rng.uniform(200, 500, len(g)),
                              rng, f)
         frames.append((f, frame))
-        det = detect_glints(frame, setup, f)
-        d = np.linalg.norm(det.glints_px[None] - g[:, None], axis=-1)
-        i = d.argmin(axis=1)
-        plain = (det.flags[i] & (IMAGE_EDGE | BLENDED)) == 0
-        cut = (det.flags[i][plain] & CUT_BY_BAND_EDGE) != 0
-        errors.append((d[np.arange(len(g)), i][plain], cut, len(det), len(g)))
-    per_frame = [best_time(lambda fr=fr, f=f: detect_glints(fr, setup, f), seconds / n_frames)
-                 for f, fr in frames]
-    err = np.concatenate([e for e, *_ in errors])
-    cut = np.concatenate([c for _, c, *_ in errors])
-    found = sum(n for *_, n, _ in errors)
-    truth = sum(t for *_, t in errors)
-    print(f"detection, paper_sim 640x480 10-bit banded frames ({truth // n_frames} glints each):")
-    print(f"  {1 / np.median(per_frame):8.0f} frames/s per core (median of per-frame best "
-          f"{np.median(per_frame) * 1e3:.2f} ms)")
-    print(f"  {found} detections for {truth} glints; centroid error median "
-          f"{np.median(err[~cut]):.3f} px, max {err[~cut].max():.3f} px ({(~cut).sum()} clean), "
-          f"band-cut median {np.median(err[cut]):.3f} px, max {err[cut].max():.3f} px "
-          f"({cut.sum()})")
+        truths.append(g)
+        for results, det in ((cold, detect_glints(frame, setup, f)), (stream, detector(frame, f))):
+            results.append((*centroid_errors(det, g), len(det), len(g)))
+    # Streaming: the per-frame best with the model reused, plus 1/refresh_frames of the cost
+    # of measuring it (the cold time less the reused one) for the frames that measure it.
+    n = detector.refresh_frames
+    reused = GlintDetector(setup, refresh_frames=2 ** 62)
+    reused(*frames[0][::-1])
+    per_frame, per_frame_reused = np.array([
+        best_times([lambda fr=fr, f=f: detect_glints(fr, setup, f),
+                    lambda fr=fr, f=f: reused(fr, f)], 2 * seconds / n_frames)
+        for f, fr in frames]).T
+    assert reused.measurements == 1  # no level drift between the bench frames
+    t_reused = np.median(per_frame_reused)
+    t_stream = t_reused + (np.median(per_frame) - t_reused) / n
+    print(f"detection, paper_sim 640x480 10-bit banded frames ({sum(map(len, truths)) // n_frames} "
+          "glints each), one core:")
+    print(f"  per frame (cold: every frame measures its noise model): "
+          f"{1 / np.median(per_frame):6.0f} frames/s (median of per-frame best "
+          f"{np.median(per_frame) * 1e3:.3f} ms)")
+    print(f"  streaming (GlintDetector, a noise model every {n} frames): {1 / t_stream:6.0f} "
+          f"frames/s ({t_stream * 1e3:.3f} ms per frame: {t_reused * 1e3:.3f} ms with the model "
+          f"reused, the median of per-frame best, and 1/{n} of the measurement)")
+    print_accuracy("cold", cold, n_frames)
+    print_accuracy("streaming", stream, n_frames)
 
 
 def realistic_bands(setup, n, rng, rows=48, prior_deg=0.5):

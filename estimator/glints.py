@@ -22,11 +22,17 @@ a Raspberry Pi, one frame per 16.6 ms):
    threshold. The medians are counted (histograms) for integer frames and sorted for float
    ones, with the same result. Pixels above the lowest threshold are found word by word,
    then kept where the top-hat exceeds the threshold at their own level.
+   :class:`GlintDetector` measures this model only now and then over the frames of one
+   sequence (it is the sensor's, not the scene's; see there when it is measured again).
 3. Connected components (one ``cv2.connectedComponents``, 8-connected) on the bounding
    rectangle of the pixels above threshold; each component's area and box from the labels of
    its pixels (OpenCV's own statistics cost 4x the labelling).
-4. Per component, in one vectorised pass over the pixels of the component boxes grown by
-   ``centroid_margin_px`` (one ``np.add.reduceat`` over each box's contiguous pixels): the
+4. Per component, over its box grown by ``centroid_margin_px``: components whose grown box
+   fits in :data:`_PATCH_PX` pixels each way (all unsaturated glints) as one (k, ph pw) stack
+   of equal patches read around the boxes, the patch beyond each box masked out, moments as
+   matrix products with fixed coordinate images (a few dozen numpy calls for all of them);
+   the rare larger ones (blooms, blends, clutter) pixel by pixel, one ``np.add.reduceat`` over
+   each box's contiguous pixels. Both weigh the same pixels alike (tested to 1e-9 px): the
    intensity-weighted centroid of the top-hat above its floor (pixel-centre convention: (0, 0)
    is the centre of the top-left pixel), with each row divided by the light it collected from
    the strobes, Σ_j w_j(y) of :func:`estimator.banding.row_pulse_weights`, clamped below at
@@ -61,7 +67,7 @@ is the caller's decision.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 
 import cv2
@@ -364,28 +370,120 @@ def detect_glints(frame, setup: Setup, frame_index: int = 0,
     ValueError
         Empty frame, wrong shape or dtype, NaN or infinite values, non-integer frame index.
     """
+    img, frame_index = _prepare(frame, setup, frame_index)
+    return _detect(img, setup, frame_index, params, None)[0]
+
+
+def _prepare(frame, setup: Setup, frame_index) -> tuple[np.ndarray, int]:
+    """The checked frame (uint8, uint16 or float32, C-contiguous) and frame index."""
     if isinstance(frame_index, bool) or not isinstance(frame_index, (int, np.integer)):
         raise ValueError(f"frame_index must be an integer, got {frame_index!r}")
-    frame_index = int(frame_index)
     img = _check_frame(frame, setup)
-    sensor = setup.sensor
-    height, width = img.shape
-    if sensor.visible_lines != height:
-        raise ValueError(f"setup {setup.name!r}: sensor.visible_lines = {sensor.visible_lines} "
-                         f"but its camera image has {height} rows")
+    if setup.sensor.visible_lines != img.shape[0]:
+        raise ValueError(f"setup {setup.name!r}: sensor.visible_lines = "
+                         f"{setup.sensor.visible_lines} but its camera image has "
+                         f"{img.shape[0]} rows")
+    return img, int(frame_index)
+
+
+def _full_scale_and_black(img: np.ndarray, sensor: Sensor, params: DetectionParams):
+    """Full scale and black level (DN) of a checked frame."""
     if img.dtype == np.uint8:
         full_scale, black = 255.0, sensor.black_level_dn * 2.0 ** (8 - sensor.bit_depth)
     else:
         full_scale, black = float(2 ** sensor.bit_depth - 1), float(sensor.black_level_dn)
     if params.saturation_dn is not None:
         full_scale = float(params.saturation_dn)
+    return full_scale, black
+
+
+class GlintDetector:
+    """:func:`detect_glints` over the frames of one sequence, measuring the noise model of
+    step 2 only now and then (it costs about as much as the rest of steps 2-3).
+
+    The model is the top-hat's floor and σ as functions of the background level L, a property
+    of the sensor (read noise, conversion gain, quantisation) and of the top-hat operator, not
+    of where the eye looks: a frame's model serves the frames after it. It is measured again
+
+    - when the frame's mean level (on the model's 1-in-64 subsample, glints included) has moved
+      by more than ``level_drift`` of the mean above black since the model was measured, or by
+      1 DN on a frame near black: exposure, analog gain or illumination changes rescale every
+      level and σ(L) with them; 5 % rescales σ by at most 5 %, which moves the 8 σ threshold
+      by 0.4 σ (measured false glints per frame: 0.005 at 7.5 σ,
+      :attr:`DetectionParams.threshold_sigma`). A blink, the eye leaving the frame or a
+      strobe that fails moves the mean by far more. The mean of 4,800 pixels wanders by
+      ~σ / 70 from frame to frame: far below either bound.
+    - every ``refresh_frames`` frames (default 30, 0.5 s at 60 fps) in any case: slow changes
+      the mean does not see (sensor warm-up raising the dark noise, the level histogram
+      reshaping as the eye turns, which moves the model's bins) last at most that long, and
+      the measurement adds 1/30 of its cost to each frame;
+    - when the frame's dtype changes (8-bit and 10-bit output have different models), and
+      after :meth:`reset`.
+
+    The detections carry the model's ``noise_dn`` and ``threshold_dn``: those of the frame it
+    was measured on.
+
+    Parameters
+    ----------
+    setup : Setup
+    params : DetectionParams
+    refresh_frames : int
+        Frames per model, >= 1 (1: every frame is measured, as :func:`detect_glints`).
+    level_drift : float
+        Relative change of the mean level above black that forces a new model, > 0.
+    """
+
+    def __init__(self, setup: Setup, params: DetectionParams = DetectionParams(), *,
+                 refresh_frames: int = 30, level_drift: float = 0.05):
+        if isinstance(refresh_frames, bool) or not isinstance(refresh_frames, (int, np.integer)) \
+                or refresh_frames < 1:
+            raise ValueError(f"refresh_frames must be an integer >= 1, got {refresh_frames!r}")
+        if not level_drift > 0:
+            raise ValueError(f"level_drift must be positive, got {level_drift!r}")
+        self.setup, self.params = setup, params
+        self.refresh_frames, self.level_drift = int(refresh_frames), float(level_drift)
+        self.measured_at: int | None = None  # frame index of the model in use
+        self.measurements = 0  # models measured so far
+        self._noise: _NoiseModel | None = None
+        self._mean = 0.0
+        self._dtype = None
+        self._age = 0
+
+    def reset(self) -> None:
+        """Forget the noise model: the next frame measures its own."""
+        self._noise, self.measured_at = None, None
+
+    def __call__(self, frame, frame_index: int) -> GlintDetections:
+        """The glints of the next frame of the sequence (as :func:`detect_glints`)."""
+        img, frame_index = _prepare(frame, self.setup, frame_index)
+        mean = float(img[::_NOISE_STEP, ::_NOISE_STEP].mean())
+        noise = self._noise
+        if noise is not None:
+            black = _full_scale_and_black(img, self.setup.sensor, self.params)[1]
+            if (self._age >= self.refresh_frames or img.dtype != self._dtype
+                    or abs(mean - self._mean) > max(self.level_drift * (self._mean - black), 1.0)):
+                noise = None
+        det, model = _detect(img, self.setup, frame_index, self.params, noise)
+        if noise is None:
+            self._noise, self._mean, self._dtype, self._age = model, mean, img.dtype, 0
+            self.measured_at = frame_index
+            self.measurements += 1
+        self._age += 1
+        return det
+
+
+def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionParams,
+            noise: _NoiseModel | None) -> tuple[GlintDetections, _NoiseModel]:
+    """:func:`detect_glints` on a checked frame, with ``noise`` as its noise model (measured
+    on the frame when None). Returns the detections and the model used."""
+    sensor = setup.sensor
+    height, width = img.shape
+    full_scale, black = _full_scale_and_black(img, sensor, params)
 
     # 1-2: background and threshold (shot noise: the threshold rises with the background).
     top = cv2.morphologyEx(img, cv2.MORPH_TOPHAT, _line_kernel(params.background_kernel_px))
-    sample = np.float32 if img.dtype.kind == "f" else np.int64
-    t = top[::_NOISE_STEP, ::_NOISE_STEP].astype(sample).ravel()
-    noise = _NoiseModel.measure(t, img[::_NOISE_STEP, ::_NOISE_STEP].astype(sample).ravel() - t,
-                                params)
+    if noise is None:
+        noise = _NoiseModel.of_frame(img, top, params)
     # Compare in the image's own type: a Python float would cast the whole frame to float64.
     low = noise.lowest_threshold
     idx = _flat_true(top > (math.floor(low) if top.dtype.kind == "u" else np.float32(low)))
@@ -393,7 +491,7 @@ def detect_glints(frame, setup: Setup, frame_index: int = 0,
         t = top.ravel()[idx].astype(np.float64)
         idx = idx[t > noise.threshold(img.ravel()[idx] - t)]  # level: the opening
     if idx.size == 0:
-        return _empty(frame_index, noise.typical_sigma, noise.typical_threshold)
+        return _empty(frame_index, noise.typical_sigma, noise.typical_threshold), noise
 
     # 3: components on the bounding rectangle of the pixels above threshold, padded so that
     # every grown component box lies inside it; their boxes from the labels of those pixels
@@ -402,7 +500,8 @@ def detect_glints(frame, setup: Setup, frame_index: int = 0,
     rows, cols = np.divmod(idx, width)
     r0, r1 = max(int(rows[0]) - m, 0), min(int(rows[-1]) + m + 1, height)
     c0, c1 = max(int(cols.min()) - m, 0), min(int(cols.max()) + m + 1, width)
-    crop = np.zeros((r1 - r0, c1 - c0), dtype=np.uint8)
+    # Padded below and right so that every patch of step 4 lies inside it.
+    crop = np.zeros((r1 - r0 + _PATCH_PX, c1 - c0 + _PATCH_PX), dtype=np.uint8)
     crop[rows - r0, cols - c0] = 1
     n_lab, labels = cv2.connectedComponentsWithAlgorithm(crop, 8, cv2.CV_32S, cv2.CCL_BOLELLI)
     lab = labels[rows - r0, cols - c0]
@@ -414,72 +513,76 @@ def detect_glints(frame, setup: Setup, frame_index: int = 0,
     box_x0, box_x1 = np.minimum.reduceat(cols, first), np.maximum.reduceat(cols, first)
     comp = np.flatnonzero((area >= params.min_area_px) & (area <= params.max_area_px))
     if comp.size == 0:
-        return _empty(frame_index, noise.typical_sigma, noise.typical_threshold)
+        return _empty(frame_index, noise.typical_sigma, noise.typical_threshold), noise
 
-    # 4: every grown box's pixels, component after component, and their weights.
-    px = _gather(comp + 1, box_y0[comp], box_y1[comp], box_x0[comp], box_x1[comp], labels, r0, c0,
-                 m, height, width)
+    # 4: centroid, shape and light of every component over its box grown by the margin:
+    # small boxes as one stack of equal patches, the rare large ones pixel by pixel.
     table, m_off = _frame_timing(sensor, setup.strobe, frame_index, params.cut_tolerance)
-    raw, value, weight, gain = _weights(px, img, top, noise, table, params)
-    spots = _measure(px, value, weight, top)
+    box = _Boxes.grown(comp + 1, box_y0[comp], box_y1[comp], box_x0[comp], box_x1[comp], m,
+                       height, width)
+    small = (box.gy1 - box.gy0 <= _PATCH_PX) & (box.gx1 - box.gx0 <= _PATCH_PX)
+    if small.all():
+        spots = _measure_patches(box, img, top, labels, r0, c0, noise, table, params)
+    else:
+        patch, pixel = np.flatnonzero(small), np.flatnonzero(~small)
+        parts = [_measure_pixels(_gather(box.take(pixel), labels, r0, c0, height, width), img,
+                                 top, noise, table, params)[0]]
+        if patch.size:
+            parts.insert(0, _measure_patches(box.take(patch), img, top, labels, r0, c0, noise,
+                                             table, params))
+        spots = _Spots.concat(parts).take(np.argsort(np.concatenate([patch, pixel])))
 
     # 5: split blended neighbours, then filter.
-    blended = np.zeros(spots.u.size, dtype=bool)
-    replaced = np.zeros(spots.u.size, dtype=bool)
-    area_out = area[comp]
+    area_out, row0, row1, edge = area[comp], box.y0, box.y1, box.edge
+    blended = np.zeros(comp.size, dtype=bool)
+    replaced = np.zeros(comp.size, dtype=bool)
     elongated = np.flatnonzero(spots.elong > params.blend_elongation)
     if elongated.size:
-        px2, split = _deblend(px, value, elongated, top, params)
+        px = _gather(box.take(elongated), labels, r0, c0, height, width)
+        value = _weights(px, img, top, noise, table, params)[1]
+        px2, split = _deblend(px, value, np.arange(px.n), top, params)
         if px2 is not None:
-            replaced[split] = True
+            replaced[elongated[split]] = True
+            spots = _Spots.concat([spots, _measure_pixels(px2, img, top, noise, table,
+                                                          params)[0]])
             replaced = np.concatenate([replaced, np.zeros(px2.n, dtype=bool)])
-            raw2, value2, weight2, gain2 = _weights(px2, img, top, noise, table, params)
-            spots2 = _measure(px2, value2, weight2, top)
-            spots = _concat(spots, spots2)
-            px = _concat_pixels(px, px2)
-            raw, value, weight, gain = (np.concatenate([a, b]) for a, b in (
-                (raw, raw2), (value, value2), (weight, weight2), (gain, gain2)))
-            blended = np.concatenate([blended, np.ones(spots2.u.size, dtype=bool)])
+            blended = np.concatenate([blended, np.ones(px2.n, dtype=bool)])
             area_out = np.concatenate([area_out, np.bincount(px2.seg, px2.own, px2.n)
                                        .astype(np.int64)])
-    raw_peak = np.maximum.reduceat(np.where(px.own, raw, 0), px.starts)
-    saturated = raw_peak.astype(np.float64) >= full_scale
+            row0, row1, edge = (np.concatenate([a, b]) for a, b in (
+                (row0, px2.row0), (row1, px2.row1), (edge, px2.edge)))
+    saturated = spots.raw_peak.astype(np.float64) >= full_scale
     good = (~replaced & (spots.flux > 0) & (spots.elong <= params.max_elongation)
             & ((spots.neighbour >= params.min_neighbour_ratio) | saturated))
     if not good.any():
-        return _empty(frame_index, noise.typical_sigma, noise.typical_threshold)
+        return _empty(frame_index, noise.typical_sigma, noise.typical_threshold), noise
 
     # 6: band and time, from the pulse at the centroid row and its two neighbours (the only
-    # ones a spot a few rows high can see). A centroid is a weighted mean of pixel centres, so
-    # its row lies in the frame.
-    dom = table.dominant[np.rint(spots.v).astype(np.intp) + 1]
-    cols = dom[:, None] + np.arange(-1, 2)  # (n, 3) table columns, zero beyond the pulses
-    light = np.maximum(value, 0.0) * gain * px.usable
-    sums = np.add.reduceat(np.concatenate([light[None], table.weights[px.ys + 1, cols[px.seg].T]
-                                           * light]), px.starts, axis=1)
-    shares = sums[1:] / np.where(sums[0] > 0, sums[0], 1.0)  # (3, n)
+    # ones a spot a few rows high can see): spots.light holds each spot's light and its
+    # sums weighted by those three pulses' row weights.
+    shares = spots.light[1:] / np.where(spots.light[0] > 0, spots.light[0], 1.0)  # (3, n)
     ranked = np.sort(shares, axis=0)
     lit = ranked[2] > 0
-    col = dom + np.argmax(shares, axis=0) - 1  # the table column of the largest share
+    col = spots.dom + np.argmax(shares, axis=0) - 1  # the table column of the largest share
     strobe = setup.strobe
     j_global = np.where(lit, table.local_index[np.where(lit, col - 1, 0)] - m_off, NO_PULSE)
     time_s = np.where(lit, strobe.phase_s + j_global * strobe.period_s + 0.5 * strobe.pulse_s,
                       np.nan)
     # Cut by a band edge: the pulse's weight on a row of the spot (±1) is below its plateau.
     below = table.below_plateau
-    cut = lit & (below[px.row1 + 3, col] > below[px.row0, col])
+    cut = lit & (below[row1 + 3, col] > below[row0, col])
 
     flags = (saturated * SATURATED | cut * CUT_BY_BAND_EDGE
              | (lit & (ranked[1] >= params.two_pulse_share)) * TWO_PULSES
-             | px.edge * IMAGE_EDGE | (~lit) * NO_BAND | blended * BLENDED).astype(np.int64)
+             | edge * IMAGE_EDGE | (~lit) * NO_BAND | blended * BLENDED).astype(np.int64)
     sel = np.flatnonzero(good)
     sel = sel[np.argsort(spots.v[sel], kind="stable")]
     return GlintDetections(
         u_px=spots.u[sel], v_px=spots.v[sel], intensity=spots.flux[sel],
-        area_px=area_out[sel], peak=raw_peak[sel].astype(np.float64) - black,
+        area_px=area_out[sel], peak=spots.raw_peak[sel].astype(np.float64) - black,
         strobe_index=j_global[sel].astype(np.int64), time_s=time_s[sel], flags=flags[sel],
         frame_index=frame_index, noise_dn=noise.typical_sigma,
-        threshold_dn=noise.typical_threshold)
+        threshold_dn=noise.typical_threshold), noise
 
 
 #: The noise model's subsample: every 8th pixel of every 8th row (4,800 at VGA).
@@ -525,6 +628,7 @@ class _NoiseModel:
     lowest_threshold: float
     typical_sigma: float  # at the median level
     typical_threshold: float
+    _tables: dict = field(default_factory=dict, repr=False, compare=False)
 
     #: Level bins, between quantiles of the subsample: finer toward the bright end, where a
     #: small bright area (sclera, skin under the strobe) must still get its own σ (the top bin
@@ -556,6 +660,23 @@ class _NoiseModel:
         return cls(levels, floors, sigmas, k, slope, float((floors + k * sigmas).min()),
                    float(np.interp(typical, levels, sigmas)) + extra,
                    float(np.interp(typical, levels, floors + k * sigmas)) + k * extra)
+
+    @classmethod
+    def of_frame(cls, img: np.ndarray, top: np.ndarray, params: DetectionParams) -> "_NoiseModel":
+        """From a frame and its top-hat, on the :data:`_NOISE_STEP` subsample."""
+        sample = np.float32 if img.dtype.kind == "f" else np.int64
+        t = top[::_NOISE_STEP, ::_NOISE_STEP].astype(sample).ravel()
+        return cls.measure(t, img[::_NOISE_STEP, ::_NOISE_STEP].astype(sample).ravel() - t,
+                           params)
+
+    def tables(self, top_level: int) -> tuple[np.ndarray, np.ndarray]:
+        """(floor, sigma) at the integer levels 0 .. >= ``top_level``, computed once per model
+        (and again, longer, when a frame reaches beyond them)."""
+        found = self._tables.get("int")
+        if found is None or found[0].size <= top_level:
+            level = np.arange(1 << max(int(top_level), 255).bit_length(), dtype=np.float64)
+            found = self._tables["int"] = (self.floor(level), self.sigma(level))
+        return found
 
     def _extra(self, level):
         return self.slope * np.maximum(level - self.levels[-1], 0.0) if self.slope else 0.0
@@ -658,48 +779,79 @@ class _Pixels:
     edge: np.ndarray  # (n,) bool: the grown box touches the image border
 
 
-def _gather(lab_ids, y0, y1, x0, x1, labels, r0, c0, margin, height, width) -> _Pixels:
-    """The pixels of the component boxes (first and last rows and columns) grown by
-    ``margin``; ``labels`` is the label image of the crop at (r0, c0), ``lab_ids`` the
-    components' labels."""
-    n = lab_ids.size
-    gy0, gy1 = np.maximum(y0 - margin, 0), np.minimum(y1 + margin + 1, height)  # exclusive
-    gx0, gx1 = np.maximum(x0 - margin, 0), np.minimum(x1 + margin + 1, width)
-    bw = gx1 - gx0
-    counts = bw * (gy1 - gy0)
+@dataclass(frozen=True, slots=True)
+class _Boxes:
+    """Boxes of k components: their labels, own rows and columns (inclusive), the box grown
+    by the centroid margin and clipped to the frame (exclusive ends), and whether the grown
+    box touches the frame's border."""
+
+    ids: np.ndarray
+    y0: np.ndarray
+    y1: np.ndarray
+    x0: np.ndarray
+    x1: np.ndarray
+    gy0: np.ndarray
+    gy1: np.ndarray
+    gx0: np.ndarray
+    gx1: np.ndarray
+    edge: np.ndarray
+
+    @classmethod
+    def grown(cls, ids, y0, y1, x0, x1, margin: int, height: int, width: int) -> "_Boxes":
+        gy0, gy1 = np.maximum(y0 - margin, 0), np.minimum(y1 + margin + 1, height)
+        gx0, gx1 = np.maximum(x0 - margin, 0), np.minimum(x1 + margin + 1, width)
+        edge = (gx0 == 0) | (gy0 == 0) | (gx1 == width) | (gy1 == height)
+        return cls(ids, y0, y1, x0, x1, gy0, gy1, gx0, gx1, edge)
+
+    def take(self, sel) -> "_Boxes":
+        return _Boxes(*(getattr(self, name)[sel] for name in self.__slots__))
+
+
+def _gather(box: _Boxes, labels, r0, c0, height, width) -> _Pixels:
+    """The pixels of the grown boxes, box after box, row by row; ``labels`` is the label
+    image of the crop at (r0, c0)."""
+    n = box.ids.size
+    bw = box.gx1 - box.gx0
+    counts = bw * (box.gy1 - box.gy0)
     starts = np.cumsum(counts) - counts
     seg = np.repeat(np.arange(n), counts)
     dy, dx = np.divmod(np.arange(int(counts.sum())) - starts[seg], bw[seg])
-    ys, xs = gy0[seg] + dy, gx0[seg] + dx
+    ys, xs = box.gy0[seg] + dy, box.gx0[seg] + dx
     lab = labels[ys - r0, xs - c0]
-    own = lab == lab_ids[seg]
-    edge = (gx0 == 0) | (gy0 == 0) | (gx1 == width) | (gy1 == height)
-    return _Pixels(n, seg, starts, ys, xs, own, own | (lab == 0), y0, y1, edge)
+    own = lab == box.ids[seg]
+    return _Pixels(n, seg, starts, ys, xs, own, own | (lab == 0), box.y0, box.y1, box.edge)
 
 
 @dataclass(frozen=True, slots=True)
 class _Spots:
+    """What step 4 measures on n spots (arrays over the last axis)."""
+
     u: np.ndarray
     v: np.ndarray
     flux: np.ndarray
     elong: np.ndarray
-    neighbour: np.ndarray
+    neighbour: np.ndarray  # brightest 4-neighbour of the peak pixel over the peak
+    raw_peak: np.ndarray  # brightest own pixel of the frame (DN, black level included)
+    dom: np.ndarray  # row-table column of the dominant pulse of the centroid's row
+    light: np.ndarray  # (4, n) light, and its sums weighted by pulses dom - 1, dom, dom + 1
+
+    def take(self, sel) -> "_Spots":
+        return _Spots(*(getattr(self, name)[..., sel] for name in self.__slots__))
+
+    @staticmethod
+    def concat(parts) -> "_Spots":
+        return _Spots(*(np.concatenate([getattr(p, name) for p in parts], axis=-1)
+                        for name in _Spots.__slots__))
 
 
-def _measure(px: _Pixels, value, weight, top) -> _Spots:
-    """Centroids, flux, elongation and peak sharpness of every spot, vectorised (pixels are
-    contiguous per spot, so one ``np.add.reduceat`` sums all the moments)."""
-    seg, starts = px.seg, px.starts
-    w = weight * px.usable
-    wo = weight * px.own  # second moments: own pixels only (the skirt's noise has no shape)
-    x = (px.xs - px.xs[starts][seg]).astype(np.float64)  # box-local coordinates: no cancellation
-    y = (px.ys - px.ys[starts][seg]).astype(np.float64)
-    sums = np.add.reduceat(np.stack([w, w * x, w * y, wo, wo * x, wo * y, wo * x * x, wo * y * y,
-                                     wo * x * y]), starts, axis=1)
+def _shape(sums, u0, v0):
+    """Centroid, flux and elongation from the moment sums (9, n) of a spot's weights: over
+    usable pixels Σw, Σwx, Σwy; over own pixels Σw, Σwx, Σwy, Σwx², Σwy², Σwxy, with x, y
+    relative to (u0, v0)."""
     s0 = sums[0]
     s0_safe = np.where(s0 > 0, s0, 1.0)
-    u = sums[1] / s0_safe + px.xs[starts]
-    v = sums[2] / s0_safe + px.ys[starts]
+    u = sums[1] / s0_safe + u0
+    v = sums[2] / s0_safe + v0
     o0 = np.where(sums[3] > 0, sums[3], 1.0)
     mx, my = sums[4] / o0, sums[5] / o0
     sxx = sums[6] / o0 - mx * mx
@@ -709,18 +861,136 @@ def _measure(px: _Pixels, value, weight, top) -> _Spots:
     disc = np.sqrt(np.maximum(half_tr * half_tr - (sxx * syy - sxy * sxy), 0.0))
     # + 1/12 px²: the second moment of one pixel, so that a one-pixel-wide spot stays finite.
     elong = np.sqrt((half_tr + disc + 1 / 12) / (np.maximum(half_tr - disc, 0.0) + 1 / 12))
+    return u, v, s0, elong
+
+
+def _neighbour_ratio(top, py, px, peak):
+    """Brightest 4-neighbour of the peak pixels (py, px) over their value ``peak`` above the
+    top-hat floor."""
+    h, w = top.shape
+    ny = np.stack([np.maximum(py - 1, 0), np.minimum(py + 1, h - 1), py, py])
+    nx = np.stack([px, px, np.maximum(px - 1, 0), np.minimum(px + 1, w - 1)])
+    nb = top.ravel().take(ny * w + nx).max(axis=0)
+    floor = top.ravel().take(py * w + px) - peak  # the top-hat floor under the peak
+    return (nb.astype(np.float64) - floor) / np.where(peak > 0, peak, 1.0)
+
+
+def _measure_pixels(px: _Pixels, img, top, noise, table, params):
+    """Centroids, flux, elongation, peak sharpness and pulse light of every spot, pixel by
+    pixel (pixels are contiguous per spot, so one ``np.add.reduceat`` sums all the moments).
+    Returns the spots and each pixel's value above the top-hat floor."""
+    raw, value, weight, gain = _weights(px, img, top, noise, table, params)
+    seg, starts = px.seg, px.starts
+    w = weight * px.usable
+    wo = weight * px.own  # second moments: own pixels only (the skirt's noise has no shape)
+    x = (px.xs - px.xs[starts][seg]).astype(np.float64)  # box-local coordinates: no cancellation
+    y = (px.ys - px.ys[starts][seg]).astype(np.float64)
+    sums = np.add.reduceat(np.stack([w, w * x, w * y, wo, wo * x, wo * y, wo * x * x, wo * y * y,
+                                     wo * x * y]), starts, axis=1)
+    u, v, flux, elong = _shape(sums, px.xs[starts], px.ys[starts])
     # Peak pixel (the first of a spot's maxima) and its brightest 4-neighbour.
     vo = np.where(px.own, value, -np.inf)
     peak = np.maximum.reduceat(vo, starts)
     at = np.flatnonzero(vo == peak[seg])
     first = at[np.concatenate([[True], seg[at][1:] != seg[at][:-1]])]
-    py, pxx = px.ys[first], px.xs[first]
-    h, wd = top.shape
-    nb = np.maximum.reduce([top[np.maximum(py - 1, 0), pxx], top[np.minimum(py + 1, h - 1), pxx],
-                            top[py, np.maximum(pxx - 1, 0)], top[py, np.minimum(pxx + 1, wd - 1)]])
-    floor = top[py, pxx] - peak  # the top-hat floor under the peak
-    neighbour = (nb.astype(np.float64) - floor) / np.where(peak > 0, peak, 1.0)
-    return _Spots(u, v, s0, elong, neighbour)
+    neighbour = _neighbour_ratio(top, px.ys[first], px.xs[first], peak)
+    raw_peak = np.maximum.reduceat(np.where(px.own, raw, 0), starts)
+    dom = table.dominant[np.rint(v).astype(np.intp) + 1]
+    cols = dom[:, None] + np.arange(-1, 2)  # (n, 3) table columns, zero beyond the pulses
+    light = np.maximum(value, 0.0) * gain * px.usable
+    light = np.add.reduceat(np.concatenate([light[None], table.weights[px.ys + 1, cols[seg].T]
+                                            * light]), starts, axis=1)
+    return _Spots(u, v, flux, elong, neighbour, raw_peak, dom, light), value
+
+
+#: Components whose grown box fits in this many pixels each way are measured on one stack of
+#: equal patches (a few dozen numpy calls for all of them, against ~150 calls' worth of
+#: per-pixel passes); larger ones (saturated blooms, blends, clutter) pixel by pixel. An
+#: unsaturated glint of σ <= 1.5 px is at most 11 px across with its margin.
+_PATCH_PX = 13
+
+
+@dataclass(frozen=True, slots=True)
+class _PatchLayout:
+    """A (ph, pw) patch, its pixels row by row (read-only arrays)."""
+
+    offsets: np.ndarray  # (ph pw,) flat offsets in an image ``width`` wide
+    row: np.ndarray  # (ph pw,) row in the patch
+    inside: np.ndarray  # (ph + 1, pw + 1, ph pw) bool: in the top-left (h, w) box of the patch
+    basis: np.ndarray  # (ph pw, 6) 1, x, y, x², y², xy
+
+
+@lru_cache(maxsize=64)
+def _patch_layout(ph: int, pw: int, width: int) -> _PatchLayout:
+    y, x = np.divmod(np.arange(ph * pw), pw)
+    inside = ((y < np.arange(ph + 1)[:, None, None, None])
+              & (x < np.arange(pw + 1)[None, :, None, None]))[:, :, 0, :]
+    yf, xf = y.astype(np.float64), x.astype(np.float64)
+    basis = np.stack([np.ones(ph * pw), xf, yf, xf * xf, yf * yf, xf * yf], axis=1)
+    out = _PatchLayout(y * width + x, y, inside, basis)
+    for name in out.__slots__:
+        getattr(out, name).setflags(write=False)
+    return out
+
+
+def _measure_patches(box: _Boxes, img, top, labels, r0, c0, noise, table, params) -> _Spots:
+    """:func:`_measure_pixels` for spots whose grown boxes are small, on a (k, ph pw) stack
+    of patches, ph x pw the largest grown box: the same pixels with the same weights (the
+    patch beyond a spot's box is masked out), summed in another order. ``labels`` must extend
+    ph rows and pw columns beyond every box (the crop is padded so)."""
+    height, width = img.shape
+    k = box.ids.size
+    bh, bw = box.gy1 - box.gy0, box.gx1 - box.gx0
+    ph, pw = int(bh.max()), int(bw.max())
+    lay = _patch_layout(ph, pw, width)
+    # Patch pixels beyond the frame's last row are clipped to its last pixel, and those beyond
+    # its last column run into the next row: all lie outside the box and are masked out.
+    flat = (box.gy0 * width + box.gx0)[:, None] + lay.offsets
+    raw = img.ravel().take(flat, mode="clip")
+    t_raw = top.ravel().take(flat, mode="clip")
+    t = t_raw.astype(np.float64)
+    crop_width = labels.shape[1]
+    lab = labels.ravel().take(((box.gy0 - r0) * crop_width + box.gx0 - c0)[:, None]
+                              + _patch_layout(ph, pw, crop_width).offsets)
+    own = lab == box.ids[:, None]  # a component's pixels all lie in its box
+    usable = (own | (lab == 0)) & lay.inside[bh, bw]
+    # As in _weights, element by element (on integer frames the level is an integer, and the
+    # noise model's tables hold its interpolation at every integer level).
+    if raw.dtype.kind == "u":
+        level = raw - t_raw  # the opening: no wrap-around
+        floors, sigmas = noise.tables(int(level.max()))
+        value = t - floors.take(level)
+        sigma = sigmas.take(level)
+    else:
+        level = raw - t
+        value = t - noise.floor(level)
+        sigma = noise.sigma(level)
+    rows = np.minimum(box.gy0[:, None] + np.arange(ph), height - 1)  # (k, ph)
+    gain = 1.0 / np.maximum(table.total[rows + 1], params.band_weight_floor)
+    weight = (np.maximum(value - params.centroid_floor_sigma * sigma, 0.0)
+              * gain.take(lay.row, axis=1))
+    sums = np.concatenate([((weight * usable) @ lay.basis[:, :3]).T,
+                           ((weight * own) @ lay.basis).T])
+    u, v, flux, elong = _shape(sums, box.gx0, box.gy0)
+    vo = np.where(own, value, -np.inf)
+    first = vo.argmax(axis=1)  # the first of a spot's maxima, row by row as in _gather
+    peak = vo[np.arange(k), first]
+    if params.centroid_margin_px >= 1 and not box.edge.any():
+        # The peak's 4-neighbours lie inside its grown box, hence inside the patch.
+        at = first[:, None] + np.array([0, -pw, pw, -1, 1])
+        near = np.take_along_axis(t, at, axis=1)
+        floor = near[:, 0] - peak  # the top-hat floor under the peak
+        neighbour = (near[:, 1:].max(axis=1) - floor) / np.where(peak > 0, peak, 1.0)
+    else:
+        fy, fx = np.divmod(first, pw)
+        neighbour = _neighbour_ratio(top, box.gy0 + fy, box.gx0 + fx, peak)
+    raw_peak = np.where(own, raw, 0).max(axis=1)
+    dom = table.dominant[np.rint(v).astype(np.intp) + 1]
+    row_light = (np.maximum(value, 0.0) * usable).reshape(k, ph, pw).sum(axis=2) * gain
+    pulse_weights = table.weights[(rows + 1)[:, :, None], dom[:, None, None] + np.arange(-1, 2)]
+    light = np.concatenate([row_light.sum(axis=1)[None],
+                            (row_light[:, None, :] @ pulse_weights)[:, 0].T])
+    return _Spots(u, v, flux, elong, neighbour, raw_peak, dom, light)
 
 
 def _deblend(px: _Pixels, value, spots_idx, top, params: DetectionParams):
@@ -771,16 +1041,3 @@ def _deblend(px: _Pixels, value, spots_idx, top, params: DetectionParams):
     return _Pixels(len(parts), np.repeat(np.arange(len(parts)), counts), starts, cat(0), cat(1),
                    cat(2), cat(3), np.array([p[4] for p in parts]),
                    np.array([p[5] for p in parts]), np.array([p[6] for p in parts])), split
-
-
-def _concat(a: _Spots, b: _Spots) -> _Spots:
-    return _Spots(*(np.concatenate([x, y]) for x, y in zip(
-        (a.u, a.v, a.flux, a.elong, a.neighbour), (b.u, b.v, b.flux, b.elong, b.neighbour))))
-
-
-def _concat_pixels(a: _Pixels, b: _Pixels) -> _Pixels:
-    return _Pixels(a.n + b.n, np.concatenate([a.seg, b.seg + a.n]),
-                   np.concatenate([a.starts, b.starts + a.seg.size]),
-                   *(np.concatenate([x, y]) for x, y in zip(
-                       (a.ys, a.xs, a.own, a.usable, a.row0, a.row1, a.edge),
-                       (b.ys, b.xs, b.own, b.usable, b.row0, b.row1, b.edge))))

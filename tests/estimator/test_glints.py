@@ -26,6 +26,7 @@ from estimator.glints import (
     TWO_PULSES,
     DetectionParams,
     GlintDetections,
+    GlintDetector,
     detect_glints,
 )
 from estimator.scene import load_scene
@@ -44,6 +45,13 @@ MATCH_PX = 1.5
 SATURATED_MAX_PX = 0.25
 #: Spots split from a blended pair: each is pulled toward its neighbour by its skirt.
 BLENDED_MAX_PX = 0.4
+#: The patch and pixel paths sum the same weights in another order: rounding only.
+SAME_SPOT_PX = 1e-9
+#: A noise model measured on another frame of the sequence: its bins' medians differ by a DN
+#: or so, which moves the centroid weights' floor (measured on the bench frames: up to 0.07 px,
+#: median 0.01 px, against a centroid error of 0.04 px median).
+STREAM_MODEL_MEDIAN_PX = 0.03
+STREAM_MODEL_MAX_PX = 0.15
 
 FULL_SCALE_DN = 1023
 
@@ -400,6 +408,146 @@ def test_faint_glints_just_above_threshold_are_found(setup):
     assert (dist < MATCH_PX).all() and len(np.unique(idx)) == len(g)
     # Noise-limited (peak/σ ~ 12): still well inside the centroid bound.
     assert np.median(dist) < CENTROID_MAX_PX
+
+
+# --------------------------------------------------------------------------- patch and pixel paths
+
+
+def assert_same_detections(a: GlintDetections, b: GlintDetections):
+    assert len(a) == len(b)
+    assert np.abs(a.glints_px - b.glints_px).max(initial=0.0) < SAME_SPOT_PX
+    assert np.allclose(a.intensity, b.intensity, rtol=1e-12, atol=0)
+    for name in ("area_px", "peak", "strobe_index", "flags", "time_s"):
+        assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True), name
+
+
+@pytest.fixture
+def pixel_path(monkeypatch):
+    """detect_glints with every component measured pixel by pixel (no patch fits)."""
+    import estimator.glints as glints
+
+    def detect(*args, **kwargs):
+        with monkeypatch.context() as m:
+            m.setattr(glints, "_PATCH_PX", 0)
+            return detect_glints(*args, **kwargs)
+    return detect
+
+
+def test_patch_and_pixel_paths_agree_on_eye_frames(setup, eye_frames, pixel_path):
+    """Small spots are measured on a stack of equal patches, large ones pixel by pixel: the
+    same pixels and weights, so the same centroids to rounding, and the same flags."""
+    for i, frame, _, det in eye_frames:
+        assert_same_detections(det, pixel_path(frame, setup, i))
+
+
+@pytest.mark.parametrize("margin", [0, 1, 2])
+@pytest.mark.parametrize("dtype", [np.uint16, np.float32])
+@pytest.mark.parametrize("patch_px", [13, 7])
+def test_patch_and_pixel_paths_agree_at_borders_and_on_large_spots(setup, pixel_path, margin,
+                                                                   dtype, patch_px, monkeypatch):
+    """Spots on the image border (patches reaching past the last row and column), a bloomed
+    saturated spot, a blended pair, a float frame (the noise model interpolated, not looked
+    up); with patches up to 7 px, the larger spots of the frame go pixel by pixel, the smaller
+    ones by patch."""
+    import estimator.glints as glints
+
+    rng = np.random.default_rng(30 + margin)
+    g = np.array([[0.4, 200.2], [639.3, 300.7], [320.2, 0.3], [400.6, 479.2], [638.9, 479.4],
+                  [200.3, 150.8], [250.0, 330.2], [254.1, 334.0]])
+    frame = banded_frame(setup, g, 1.2, 450.0, rng)
+    frame = frame + np.rint(spot_image(frame.shape, [450.3], [240.6], [2.0], [4000.0 * 8 * np.pi])
+                            ).astype(np.uint16)
+    frame = np.minimum(frame, FULL_SCALE_DN).astype(dtype)
+    params = DetectionParams(centroid_margin_px=margin)
+    monkeypatch.setattr(glints, "_PATCH_PX", patch_px)
+    det = detect_glints(frame, setup, params=params)
+    monkeypatch.undo()
+    assert det.has(IMAGE_EDGE).sum() >= 4 and det.has(BLENDED).sum() == 2
+    assert det.has(SATURATED).sum() == 1 and (det.area_px > 60).any()
+    assert_same_detections(det, pixel_path(frame, setup, params=params))
+
+
+# --------------------------------------------------------------------------- streams
+
+
+@pytest.fixture(scope="module")
+def sequence(setup):
+    """Eight consecutive frames of one fixation with a little drift (σ 0.8 px, 300 DN)."""
+    rng = np.random.default_rng(41)
+    frames = []
+    for f in range(8):
+        g, vis, _ = ground_truth_glints(setup, 0.1 + 0.002 * f, -0.05 - 0.001 * f)
+        frames.append((f, banded_frame(setup, g[vis], 0.8, 300.0, rng, frame_index=f), g[vis]))
+    return frames
+
+
+def test_stream_reuses_the_noise_model_with_the_same_glints(setup, sequence):
+    """A model measured on the sequence's first frame serves the next ones: the same glints,
+    strobes and time stamps as a fresh model, centroids within the model's own scatter."""
+    detector = GlintDetector(setup)
+    moved = []
+    for f, frame, g in sequence:
+        det, fresh = detector(frame, f), detect_glints(frame, setup, f)
+        assert detector.measured_at == 0
+        assert len(det) == len(fresh) == len(g)
+        assert np.array_equal(det.strobe_index, fresh.strobe_index)
+        assert np.array_equal(det.time_s, fresh.time_s, equal_nan=True)
+        moved.append(np.hypot(det.u_px - fresh.u_px, det.v_px - fresh.v_px))
+        _, dist = nearest(det, g)
+        assert (dist < MATCH_PX).all() and np.median(dist) < CENTROID_MEDIAN_PX
+    moved = np.concatenate(moved)
+    assert np.median(moved) < STREAM_MODEL_MEDIAN_PX and moved.max() < STREAM_MODEL_MAX_PX
+
+
+def test_stream_measures_again_when_the_level_changes(setup, sequence):
+    """An exposure 20 % longer (every level, glints included, up by 20 %): a new model at
+    once, so the frame's detections are exactly those of detect_glints; the next frame at
+    that level keeps it."""
+    detector = GlintDetector(setup)
+    (f0, frame0, _), (f1, frame1, _), (f2, frame2, _) = sequence[:3]
+    detector(frame0, f0)
+    black = setup.sensor.black_level_dn
+    brighter = [np.rint((fr.astype(float) - black) * 1.2 + black).astype(np.uint16)
+                for fr in (frame1, frame2)]
+    det = detector(brighter[0], f1)
+    assert detector.measured_at == f1
+    assert_same_detections(det, detect_glints(brighter[0], setup, f1))
+    detector(brighter[1], f2)
+    assert detector.measured_at == f1
+    # 8-bit output of the same scene: another model.
+    detector((frame2 // 4).astype(np.uint8), f2)
+    assert detector.measured_at == f2
+
+
+def test_stream_measures_again_every_refresh_frames_and_after_reset(setup, sequence):
+    detector = GlintDetector(setup, refresh_frames=3)
+    measured = []
+    for f, frame, _ in sequence[:7]:
+        detector(frame, f)
+        measured.append(detector.measured_at)
+    assert measured == [0, 0, 0, 3, 3, 3, 6]
+    detector.reset()
+    f, frame, _ = sequence[7]
+    assert_same_detections(detector(frame, f), detect_glints(frame, setup, f))
+    assert detector.measured_at == f
+    every = GlintDetector(setup, refresh_frames=1)
+    for f, frame, _ in sequence[:3]:
+        assert_same_detections(every(frame, f), detect_glints(frame, setup, f))
+
+
+@pytest.mark.parametrize("kwargs", [dict(refresh_frames=0), dict(refresh_frames=2.5),
+                                    dict(level_drift=0.0)])
+def test_bad_stream_settings(setup, kwargs):
+    with pytest.raises(ValueError):
+        GlintDetector(setup, **kwargs)
+
+
+def test_stream_checks_frames_like_detect_glints(setup):
+    detector = GlintDetector(setup)
+    with pytest.raises(ValueError, match="shape"):
+        detector(np.zeros((480, 641), np.uint16), 0)
+    with pytest.raises(ValueError, match="frame_index"):
+        detector(np.zeros((480, 640), np.uint16), 1.0)
 
 
 # --------------------------------------------------------------------------- internals
