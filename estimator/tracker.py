@@ -3,7 +3,8 @@
 This is the thin orchestrator on top of the estimator (the pipeline that runs on the
 prototype). Per frame:
 
-1. :func:`estimator.glints.detect_glints` finds the glints and stamps each with its strobe.
+1. :class:`estimator.glints.GlintDetector` (:func:`estimator.glints.detect_glints` with the noise
+   model kept over the stream) finds the glints and stamps each with its strobe.
 2. Glints are grouped by strobe; every band the banding model says lights visible rows
    (:func:`estimator.banding.band_layout`) gives one sample, glints or not.
 3. :class:`estimator.matching.GlintMatcher` identifies the band's glints, from the previous
@@ -62,7 +63,7 @@ from .calibration import Calibration, calibrate_joint
 from .cornea import fit_covariance
 from .gaze import (fit_cornea_centers, geometric_gaze, orbit_problem, polynomial_gaze,
                    posterior_covariance)
-from .glints import NO_BAND, DetectionParams, GlintDetections, detect_glints
+from .glints import NO_BAND, DetectionParams, GlintDetections, GlintDetector, detect_glints
 from .mapping import fit_gaze_mapping
 from .matching import GlintMatcher, MatchParams
 from .setup import Setup
@@ -256,6 +257,9 @@ class Tracker:
                              f"(has {sorted(calibration.mappings)})")
         self.setup, self.calibration, self.method, self.mapping = setup, calibration, method, mapping
         self.detection = detection
+        # Detection reuses the sensor's noise model from frame to frame (measured again every
+        # 30 frames, on a 5 % level drift, and after every reset of the stream).
+        self._detector = GlintDetector(setup, detection)
         # Glints predicted from the calibrated geometry, not the nominal one: the lighting pose
         # of the prototype is off by millimetres (a pixel or more per glint).
         self.matcher = GlintMatcher(setup, matching, calibration=calibration)
@@ -265,9 +269,11 @@ class Tracker:
         self.reset()
 
     def reset(self) -> None:
-        """Forget the previous sample (the next band is matched cold, and has no prior)."""
+        """Forget the previous sample (the next band is matched cold, and has no prior) and the
+        noise model (a frame that failed as a whole often means the exposure changed)."""
         self._lose()
         self._state = None
+        self._detector.reset()
 
     def _lose(self) -> None:
         """A band failed: the next dense band is matched cold (the prior of sparse bands is
@@ -303,7 +309,7 @@ class Tracker:
             if reason is not None:
                 self.reset()
                 return [_failed(frame_index, b.pulse_index, t, reason) for b, t in zip(bands, times)]
-            det = detect_glints(frame, self.setup, frame_index, self.detection)
+            det = self._detector(frame, frame_index)
             det = det.select(~det.has(NO_BAND))
             return [self._band(det, b, t) for b, t in zip(bands, times)]
         except Exception as exc:  # the stream must survive any one frame; the reason is logged

@@ -117,7 +117,7 @@ def test_an_exception_inside_a_frame_does_not_stop_the_stream(setup, calibration
     def boom(*a, **k):
         raise RuntimeError("detector exploded")
 
-    monkeypatch.setattr("estimator.tracker.detect_glints", boom)
+    monkeypatch.setattr(tr, "_detector", boom)
     out = tr.process(frames[0][0], 0)
     assert out and all(s.reason == f"{INTERNAL_ERROR}:RuntimeError" for s in out)
     assert "detector exploded" in caplog.text
