@@ -114,10 +114,14 @@ def test_an_exception_inside_a_frame_does_not_stop_the_stream(setup, calibration
                                                              monkeypatch, caplog):
     tr = Tracker(setup, calibration)
 
-    def boom(*a, **k):
-        raise RuntimeError("detector exploded")
+    class Boom:
+        def __call__(self, *a, **k):
+            raise RuntimeError("detector exploded")
 
-    monkeypatch.setattr(tr, "_detector", boom)
+        def reset(self):
+            pass
+
+    monkeypatch.setattr(tr, "_detector", Boom())
     out = tr.process(frames[0][0], 0)
     assert out and all(s.reason == f"{INTERNAL_ERROR}:RuntimeError" for s in out)
     assert "detector exploded" in caplog.text
