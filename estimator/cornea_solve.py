@@ -196,13 +196,31 @@ def gather(glints, mask, lights):
             lights[order])
 
 
+#: Samples per block of the batched LM: a block's (block, n) work arrays stay in the CPU cache
+#: (measured on paper_sim, 40 lights: 200 samples per call run ~10 % faster per sample than
+#: 1,000, and ~20 % faster than 100, whose per-call overhead weighs more).
+_BLOCK = 200
+
+
 def lm(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_iter, prior: Prior | None = None):
-    """Batched Levenberg-Marquardt (Marquardt's diagonal scaling), one Jacobian per iteration.
+    """Batched Levenberg-Marquardt (Marquardt's diagonal scaling), one Jacobian per iteration,
+    over blocks of :data:`_BLOCK` samples (the samples are independent).
 
     Each iteration evaluates the normal equations at the trial points of the samples still
     running; a trial that lowers the cost is kept (and its normal equations are the next
     ones), one that does not raises that sample's damping and keeps the old point. Returns
     x (B, p), rms (B,) of the glint residuals, iterations (B,) and converged (B,)."""
+    B = x0.shape[0]
+    if B <= 1.5 * _BLOCK:
+        return _lm_block(model, problem, glints, mask, x0, enough, lo, hi, max_iter, prior)
+    parts = [_lm_block(model, problem, glints[s], mask[s], x0[s], enough[s], lo, hi, max_iter,
+                       None if prior is None else prior.take(s))
+             for s in (slice(i, i + _BLOCK) for i in range(0, B, _BLOCK))]
+    return tuple(np.concatenate(a) for a in zip(*parts))
+
+
+def _lm_block(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_iter, prior: Prior | None):
+    """:func:`lm` on one block."""
     B, p = x0.shape
     n_seen = mask.sum(axis=1)
     lights = None

@@ -141,3 +141,16 @@ def test_covariance_matches_the_scatter_of_repeated_fits(setup, problem):
     assert np.isinf(centre).all()
     with pytest.raises(ValueError, match="model"):
         fit_covariance(problem, fit.center_m[:1], one, model="full", noise_px=0.5)
+
+
+def test_large_batches_run_in_blocks_with_the_same_answers(setup, problem, monkeypatch):
+    # The samples are independent: blocks of 200 must give exactly what one block gives.
+    T = parse_targets("grid:24x15", setup)
+    obs = simulate_glints(setup, T, noise_px=0.5, rng=np.random.default_rng(11))
+    blocks = fit_cornea(problem, obs.glints_px, obs.visible, np.zeros(2), model="orbit")
+    import estimator.cornea_solve as solve
+    monkeypatch.setattr(solve, "_BLOCK", 10_000)
+    whole = fit_cornea(problem, obs.glints_px, obs.visible, np.zeros(2), model="orbit")
+    assert len(T) == 360 and blocks.ok.all()
+    assert np.array_equal(blocks.angles_rad, whole.angles_rad)
+    assert np.array_equal(blocks.iterations, whole.iterations)
