@@ -352,16 +352,21 @@ def test_calibrated_eye_replaces_the_nominal_one():
 # --------------------------------------------------------------------------- sparse bands
 
 
+def _sparse_matches(m, n, seed, prior_error_deg, spurious, prior_sd_deg):
+    """Bands of 12 rows holding a glint or more, matched by ``match_near`` with a prior of
+    SD ``prior_sd_deg`` per axis."""
+    bands = realistic_bands(m.setup, n, np.random.default_rng(seed), band_rows=12,
+                            prior_error_deg=prior_error_deg, spurious=spurious)
+    bands = [b for b in bands if b["labels"]]
+    cov = np.eye(2) * np.radians(prior_sd_deg) ** 2
+    return [m.match_near(b["det"], b["prior"], cov, b["rows"]) for b in bands], bands
+
+
 def test_sparse_bands_are_identified_from_a_prior(matchers):
     """Bands of 12 rows (1-3 glints, up to one blob) with the previous sample's rotation off by
     up to 0.6° (a 600°/s saccade over one band period at 16 pulses per frame) and that much
     prior SD (:class:`estimator.tracker.BandPrior`)."""
-    m = matchers["paper_sim"]
-    bands = realistic_bands(m.setup, 150, np.random.default_rng(5), band_rows=12,
-                            prior_error_deg=0.6, spurious=(0, 1))
-    bands = [b for b in bands if b["labels"]]
-    cov = np.eye(2) * np.radians(0.62) ** 2
-    results = [m.match_near(b["det"], b["prior"], cov, b["rows"]) for b in bands]
+    results, bands = _sparse_matches(matchers["paper_sim"], 150, 5, 0.6, (0, 1), 0.62)
     rate, _, precision, _ = score(results, bands)
     # Measured: 99.6 % of 261 claimed identities right, 91 % of the bands identified (the
     # others "ambiguous" or clutter alone), 94 % of all labels right.
@@ -374,12 +379,7 @@ def test_sparse_bands_are_identified_from_a_prior(matchers):
 def test_a_wide_prior_refuses_rather_than_guesses(matchers):
     """A prior as wide as the step between neighbouring glints cannot tell a chain from its
     shift: the matcher says so instead of claiming identities."""
-    m = matchers["paper_sim"]
-    bands = realistic_bands(m.setup, 60, np.random.default_rng(6), band_rows=12,
-                            prior_error_deg=0.0, spurious=(0, 0))
-    bands = [b for b in bands if b["labels"]]
-    cov = np.eye(2) * np.radians(3.0) ** 2
-    results = [m.match_near(b["det"], b["prior"], cov, b["rows"]) for b in bands]
+    results, _ = _sparse_matches(matchers["paper_sim"], 60, 6, 0.0, (0, 0), 3.0)
     assert sum(r.reason == "ambiguous" for r in results) > 0.5 * len(results)
 
 
