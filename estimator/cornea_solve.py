@@ -172,9 +172,11 @@ def shared_first_step(model, problem: FitProblem, glints, mask, x_ref, enough):
         problem._start_cache[key] = (g0, J0, np.einsum("nki,nkj->nij", J0, J0), usable)
     g0, J0, JtJ_i, usable = problem._start_cache[key]
     mask = mask & usable
-    A = np.einsum("bn,nij->bij", mask.astype(float), JtJ_i)
+    B, p = mask.shape[0], J0.shape[-1]
+    # Σ over the seen lights as matrix products (einsum's own loops are several times slower).
+    A = (mask.astype(float) @ JtJ_i.reshape(n, p * p)).reshape(B, p, p)
     d = np.where(mask[..., None], glints - g0, 0.0)
-    rhs = np.einsum("nki,bnk->bi", J0, d)
+    rhs = d.reshape(B, 2 * n) @ J0.reshape(2 * n, p)
     x = np.broadcast_to(x_ref, (glints.shape[0], x_ref.size)).copy()
     # Solvable: Hadamard's ratio det(A) / Π diag(A) of the positive semi-definite A (1 for an
     # orthogonal problem, 0 for a singular one) above 1e-12.
