@@ -1,17 +1,20 @@
 """Glint detection frames per second and glint matching samples per second, one core.
 
 Detection: 640x480 10-bit banded frames of the paper_sim glints (Gaussian spots at their
-closed-form positions, every pulse's row weights, an eye-like background, shot and read noise),
-timed through :func:`estimator.glints.detect_glints`; the centroid error against the
-closed-form glints is printed alongside. Two figures: per frame (cold: every frame measures
-its own noise model) and streaming (:class:`estimator.glints.GlintDetector` over the frames as
-one sequence, measuring the model every ``refresh_frames`` frames; timed over whole refresh
-cycles, so the measurement's cost is included once per cycle). Matching: bands as the tests build them (48 rows,
+closed-form positions, every pulse's row weights, an eye-like background, shot and read noise).
+Two figures. Per frame, cold: :func:`estimator.glints.detect_glints` on frames at random eye
+rotations (every frame measures its own noise model and is searched whole), with the centroid
+error against the closed-form glints. Streaming: :class:`estimator.glints.GlintDetector` over
+120 frames of an eye making main-sequence saccades between random screen targets (each
+pulse's glints at the eye's pose at that pulse), searching every frame whole against
+searching a window around the glints, timed as whole passes over the sequence (a noise model
+and a whole-frame search every 30 frames included), alternated; the window's detections are
+checked against the whole frames'. Matching: bands as the tests build them (48 rows,
 0.3-0.5 px noise, 5-10 % dropped glints, 1-3 spurious blobs), through
 :meth:`estimator.matching.GlintMatcher.match` with a previous-sample prior and cold, on
 paper_sim and paper_sim_doubled, with the identity rates measured on them. Usage:
 
-    python benchmarks/bench_glints.py [--seconds 2] [--frames 8] [--bands 200]
+    python benchmarks/bench_glints.py [--seconds 2] [--frames 8] [--stream-frames 120] [--bands 200]
 """
 
 from __future__ import annotations
@@ -38,18 +41,22 @@ from estimator.glints import (  # noqa: E402
 )
 from estimator.matching import GlintMatcher  # noqa: E402
 from estimator.scene import load_scene  # noqa: E402
+from scet_render.motion import saccade_sequence  # noqa: E402
 from scet_render.simulate import ground_truth_glints, simulate_glints  # noqa: E402
 
 
-def banded_frame(setup, glints_px, sigma_px, peak_dn, rng, frame_index=0):
-    """uint16 10-bit frame: pixel-integrated Gaussian spots and an eye-like background, each row
-    weighted by the light Σ_j w_j(y) it collects from the strobe, shot and read noise."""
-    h, w = setup.camera.height_px, setup.camera.width_px
+def eye_background(h: int, w: int) -> np.ndarray:
+    """Skin, an almond eye opening, an iris and a pupil (DN before the row weights)."""
     y, x = np.mgrid[0:h, 0:w].astype(float)
     r = np.hypot(x - 300, y - 230)
     soft = lambda d, s: 1 / (1 + np.exp(np.clip(d / s, -50, 50)))  # noqa: E731
     opening = soft(np.hypot((x - 300) / 230, (y - 230) / 140) * 140 - 140, 2.0)
-    img = 115 + 70 * opening - 110 * soft(r - 105, 1.5) * opening - 40 * soft(r - 40, 1.0)
+    return 115 + 70 * opening - 110 * soft(r - 105, 1.5) * opening - 40 * soft(r - 40, 1.0)
+
+
+def add_spots(img, glints_px, sigma_px, peak_dn) -> None:
+    """Pixel-integrated Gaussian spots added to ``img`` (those too near the border left out)."""
+    h, w = img.shape
     for (u, v), s, p in zip(glints_px, sigma_px, peak_dn):
         x0, y0 = int(u) - 6, int(v) - 6
         if x0 < 0 or y0 < 0 or x0 + 14 > w or y0 + 14 > h:
@@ -57,10 +64,22 @@ def banded_frame(setup, glints_px, sigma_px, peak_dn, rng, frame_index=0):
         gx = np.diff(0.5 * erf((np.arange(x0, x0 + 15) - 0.5 - u) / (np.sqrt(2) * s)))
         gy = np.diff(0.5 * erf((np.arange(y0, y0 + 15) - 0.5 - v) / (np.sqrt(2) * s)))
         img[y0:y0 + 14, x0:x0 + 14] += p * 2 * np.pi * s * s * gy[:, None] * gx[None, :]
+
+
+def expose(setup, img, rng) -> np.ndarray:
+    """uint16 10-bit DN of a signal image: shot and read noise, the black level, clipping."""
+    img = img + np.sqrt(4.0 + img / 4.0) * rng.normal(size=img.shape) + setup.sensor.black_level_dn
+    return np.clip(np.rint(img), 0, 1023).astype(np.uint16)
+
+
+def banded_frame(setup, glints_px, sigma_px, peak_dn, rng, frame_index=0):
+    """uint16 10-bit frame: pixel-integrated Gaussian spots and an eye-like background, each row
+    weighted by the light Σ_j w_j(y) it collects from the strobe, shot and read noise."""
+    img = eye_background(setup.camera.height_px, setup.camera.width_px)
+    add_spots(img, glints_px, sigma_px, peak_dn)
     _, _, wts = row_pulse_weights(setup.sensor, setup.strobe, frame_index)
     img *= wts.sum(axis=1)[:, None]
-    img += np.sqrt(4.0 + img / 4.0) * rng.normal(size=img.shape) + setup.sensor.black_level_dn
-    return np.clip(np.rint(img), 0, 1023).astype(np.uint16)
+    return expose(setup, img, rng)
 
 
 def best_times(fns, seconds: float) -> list[float]:
@@ -99,10 +118,10 @@ def print_accuracy(label, results, n_frames):
 
 
 def bench_detection(seconds: float, n_frames: int) -> None:
+    """Per frame, cold: every frame measures its own noise model and is searched whole."""
     setup = load_scene("paper_sim")
     rng = np.random.default_rng(1)
-    frames, truths, cold, stream = [], [], [], []
-    detector = GlintDetector(setup)
+    frames, truths, cold = [], [], []
     for f in range(n_frames):
         g, vis, _ = ground_truth_glints(setup, rng.uniform(-0.3, 0.3), rng.uniform(-0.25, 0.15))
         g = g[vis]
@@ -110,30 +129,68 @@ def bench_detection(seconds: float, n_frames: int) -> None:
                              rng, f)
         frames.append((f, frame))
         truths.append(g)
-        for results, det in ((cold, detect_glints(frame, setup, f)), (stream, detector(frame, f))):
-            results.append((*centroid_errors(det, g), len(det), len(g)))
-    # Streaming: the per-frame best with the model reused, plus 1/refresh_frames of the cost
-    # of measuring it (the cold time less the reused one) for the frames that measure it.
-    n = detector.refresh_frames
-    reused = GlintDetector(setup, refresh_frames=2 ** 62)
-    reused(*frames[0][::-1])
-    per_frame, per_frame_reused = np.array([
-        best_times([lambda fr=fr, f=f: detect_glints(fr, setup, f),
-                    lambda fr=fr, f=f: reused(fr, f)], 2 * seconds / n_frames)
-        for f, fr in frames]).T
-    assert reused.measurements == 1  # no level drift between the bench frames
-    t_reused = np.median(per_frame_reused)
-    t_stream = t_reused + (np.median(per_frame) - t_reused) / n
+        det = detect_glints(frame, setup, f)
+        cold.append((*centroid_errors(det, g), len(det), len(g)))
+    per_frame = np.array([best_times([lambda fr=fr, f=f: detect_glints(fr, setup, f)],
+                                     seconds / n_frames)[0] for f, fr in frames])
     print(f"detection, paper_sim 640x480 10-bit banded frames ({sum(map(len, truths)) // n_frames} "
           "glints each), one core:")
-    print(f"  per frame (cold: every frame measures its noise model): "
+    print(f"  per frame (cold: every frame measures its noise model, whole frame): "
           f"{1 / np.median(per_frame):6.0f} frames/s (median of per-frame best "
           f"{np.median(per_frame) * 1e3:.3f} ms)")
-    print(f"  streaming (GlintDetector, a noise model every {n} frames): {1 / t_stream:6.0f} "
-          f"frames/s ({t_stream * 1e3:.3f} ms per frame: {t_reused * 1e3:.3f} ms with the model "
-          f"reused, the median of per-frame best, and 1/{n} of the measurement)")
     print_accuracy("cold", cold, n_frames)
-    print_accuracy("streaming", stream, n_frames)
+
+
+def moving_sequence(setup, n_frames: int, rng):
+    """Frames of an eye making saccades between random screen targets (fixations 0.15-0.4 s,
+    main-sequence saccades), each pulse's glints at the eye's pose at that pulse's centre and
+    weighted by its own row weights, as the rolling shutter records them."""
+    sc, eye = setup.screen, setup.eye
+    n_targets = max(2, int(n_frames * setup.sensor.frame_period_s / 0.15) + 2)
+    targets = np.stack([rng.uniform(*sc.x_range_m, n_targets), rng.uniform(*sc.y_range_m, n_targets),
+                        np.full(n_targets, sc.z_m)], axis=1)
+    traj = saccade_sequence(eye, targets, rng)
+    background = eye_background(setup.camera.height_px, setup.camera.width_px)
+    frames, peak_speed = [], 0.0
+    for f in range(n_frames):
+        _, start, wts = row_pulse_weights(setup.sensor, setup.strobe, f)
+        yaw, pitch = traj.angles_at(start + 0.5 * setup.strobe.pulse_s)
+        img = background * wts.sum(axis=1)[:, None]
+        for j in np.flatnonzero(wts.max(axis=0) > 0):
+            g, vis, _ = ground_truth_glints(setup, yaw[j], pitch[j])
+            spots = np.zeros_like(img)
+            add_spots(spots, g[vis], np.full(vis.sum(), 0.9), np.full(vis.sum(), 350.0))
+            img += spots * wts[:, j:j + 1]
+        frames.append((f, expose(setup, img, rng)))
+        speed = np.hypot(np.diff(yaw), np.diff(pitch)) / np.diff(start)
+        peak_speed = max(peak_speed, float(np.degrees(speed.max())))
+    return frames, peak_speed
+
+
+def bench_stream(seconds: float, n_frames: int) -> None:
+    """Streaming, on a moving eye: :class:`GlintDetector` searching every frame whole against
+    searching a window around the glints (``track_roi``), timed as whole passes over the
+    sequence, alternated; the window's detections checked against the whole frame's."""
+    setup = load_scene("paper_sim")
+    frames, peak_speed = moving_sequence(setup, n_frames, np.random.default_rng(7))
+    whole, window = GlintDetector(setup, track_roi=False), GlintDetector(setup)
+    dets = [[d(fr, f) for f, fr in frames] for d in (whole, window)]
+    windowed, retried = window.windowed, window.retried
+    gap = max((np.abs(a.glints_px - b.glints_px).max() if len(a) else 0.0)
+              for a, b in zip(*dets) if len(a) == len(b))
+    same = all(len(a) == len(b) and np.array_equal(a.strobe_index, b.strobe_index)
+               and np.array_equal(a.flags, b.flags) for a, b in zip(*dets))
+    t_whole, t_window = best_times([lambda: [whole(fr, f) for f, fr in frames],
+                                    lambda: [window(fr, f) for f, fr in frames]], 2 * seconds)
+    print(f"  streaming, {n_frames} frames of an eye making saccades (peak {peak_speed:.0f} deg/s), "
+          f"{sum(map(len, dets[0])) / n_frames:.1f} glints per frame, a noise model and a whole-frame "
+          f"search every {window.refresh_frames} frames:")
+    print(f"    whole frames:                    {n_frames / t_whole:6.0f} frames/s "
+          f"({t_whole / n_frames * 1e3:.3f} ms per frame)")
+    print(f"    window around the glints (+{window.roi_margin_px} px): {n_frames / t_window:6.0f} frames/s "
+          f"({t_window / n_frames * 1e3:.3f} ms per frame; {t_whole / t_window:.2f}x); "
+          f"{windowed} of {n_frames} frames in the window alone, {retried} searched again whole; "
+          f"detections {'the same' if same else 'DIFFERENT'}, centroids within {gap:.1e} px")
 
 
 def realistic_bands(setup, n, rng, rows=48, prior_deg=0.5):
@@ -200,12 +257,14 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=2.0, help="time per detection measurement")
     ap.add_argument("--frames", type=int, default=8, help="distinct frames to detect in")
+    ap.add_argument("--stream-frames", type=int, default=120, help="frames of the moving-eye stream")
     ap.add_argument("--bands", type=int, default=200, help="bands per scene to match (0: none)")
     args = ap.parse_args()
     cv2.setNumThreads(1)
     print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
           f"numpy {np.__version__}, OpenCV {cv2.__version__}, one core")
     bench_detection(args.seconds, args.frames)
+    bench_stream(args.seconds, args.stream_frames)
     if args.bands > 0:
         bench_matching(args.bands)
 

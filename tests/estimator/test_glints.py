@@ -535,8 +535,97 @@ def test_stream_measures_again_every_refresh_frames_and_after_reset(setup, seque
         assert_same_detections(every(frame, f), detect_glints(frame, setup, f))
 
 
+@pytest.fixture(scope="module")
+def saccade(setup):
+    """Twelve frames of an eye turning by 2.2° per frame (134°/s), then jumping 20° down in
+    one frame (the lowest glint moves 70 px, twice the default window margin: faster than any
+    saccade), and holding there (σ 0.8 px, 300 DN)."""
+    rng = np.random.default_rng(43)
+    yaw = np.radians([0, 2, 4, 6, 8, 10, 10, 10, 10, 10, 10, 10])
+    pitch = np.radians([0, -1, -2, -3, -4, -5, -25, -25, -25, -25, -25, -25])
+    frames = []
+    for f, (a, b) in enumerate(zip(yaw, pitch)):
+        g, vis, _ = ground_truth_glints(setup, a, b)
+        frames.append((f, banded_frame(setup, g[vis], 0.8, 300.0, rng, frame_index=f), g[vis]))
+    return frames
+
+
+def test_window_finds_what_the_whole_frame_finds(setup, saccade):
+    """Searched in a window around the glints, every frame gives the whole frame's detections
+    (the same model): the window follows the turning eye, and the jump that leaves it is
+    searched again whole in the same frame."""
+    window, whole = GlintDetector(setup), GlintDetector(setup, track_roi=False)
+    windows = []
+    for f, frame, g in saccade:
+        det = window(frame, f)
+        assert_same_detections(det, whole(frame, f))
+        assert len(det) == len(g)
+        windows.append(window.window)
+    assert windows[0] is None and whole.windowed == 0
+    assert all(w is not None for w in windows[1:6]) and windows[6] is None
+    assert window.retried == 1 and window.windowed == len(saccade) - 2
+    y0, y1, x0, x1 = windows[1]
+    assert (y1 - y0) * (x1 - x0) < 0.4 * 480 * 640  # the point of it
+
+
+def test_a_spot_cut_by_the_window_voids_it(setup, sequence):
+    """A glint straddling the window's edge is measured whole: the frame is searched again."""
+    detector, whole = GlintDetector(setup, roi_margin_px=0), GlintDetector(setup, track_roi=False)
+    (f0, frame0, g0), (f1, _, _) = sequence[0], sequence[1]
+    detector(frame0, f0)
+    whole(frame0, f0)
+    # The same glints, one of them moved 3 px beyond the rightmost (its spot crosses the edge).
+    g = g0.copy()
+    g[np.argmax(g[:, 0]), 0] += 3.0
+    frame = banded_frame(setup, g, 0.8, 300.0, np.random.default_rng(5), frame_index=f1)
+    det = detector(frame, f1)
+    assert detector.retried == 1 and detector.window is None
+    assert_same_detections(det, whole(frame, f1))
+
+
+def test_a_glint_outside_the_window_waits_for_the_whole_frame_search(setup, sequence):
+    """The documented limit: a spot appearing far outside the window is not searched for in
+    the window's frames, and is found at the next whole-frame search."""
+    detector = GlintDetector(setup, refresh_frames=3)
+    found = []
+    for f, frame, g in sequence[:4]:
+        if f:
+            frame = frame.copy()
+            frame[440:447, 600:607] += (300 * np.outer(np.hanning(7), np.hanning(7))).astype(np.uint16)
+        det = detector(frame, f)
+        found.append(bool(((det.u_px > 590) & (det.v_px > 430)).any()))
+    assert found == [False, False, False, True]
+
+
+@pytest.mark.parametrize("pad", [4, 7, 12])
+def test_a_tight_window_measures_like_the_whole_frame(setup, sequence, pad):
+    """A window a few pixels around the glints, its edges inside the top-hat line's reach
+    (10 px) of the outermost ones: the window's top-hat, threshold, timing and centroids are
+    the whole frame's."""
+    from estimator.glints import _detect, _NoiseModel
+    f, frame, g = sequence[2]
+    noise = _NoiseModel.of_frame(frame, DetectionParams())
+    whole = _detect(frame, setup, f, DetectionParams(), noise)[0]
+    u, v = whole.u_px, whole.v_px
+    roi = (int(v.min()) - pad, int(v.max()) + pad + 1, int(u.min()) - pad, int(u.max()) + pad + 1)
+    det = _detect(frame, setup, f, DetectionParams(), noise, roi)[0]
+    assert det is not None and len(det) == len(g)
+    assert_same_detections(det, whole)
+
+
+def test_window_margin_is_one_frame_of_the_fastest_eye(setup):
+    """paper_sim: glints move up to 3.6 px per degree; 600°/s for 1/60 s is 10°."""
+    from estimator.glints import window_margin_px
+    assert window_margin_px(setup) == 36
+    assert window_margin_px(setup, 300.0) == 18
+    assert GlintDetector(setup).roi_margin_px == 36
+    with pytest.raises(ValueError, match="eye_speed_deg_s"):
+        window_margin_px(setup, 0.0)
+
+
 @pytest.mark.parametrize("kwargs", [dict(refresh_frames=0), dict(refresh_frames=2.5),
-                                    dict(level_drift=0.0)])
+                                    dict(level_drift=0.0), dict(roi_margin_px=-1),
+                                    dict(roi_margin_px=2.5), dict(eye_speed_deg_s=-1.0)])
 def test_bad_stream_settings(setup, kwargs):
     with pytest.raises(ValueError):
         GlintDetector(setup, **kwargs)
