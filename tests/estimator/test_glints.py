@@ -424,11 +424,11 @@ def assert_same_detections(a: GlintDetections, b: GlintDetections):
 @pytest.fixture
 def pixel_path(monkeypatch):
     """detect_glints with every component measured pixel by pixel (no patch fits)."""
-    import estimator.glints as glints
+    import estimator.glint_spots as glint_spots
 
     def detect(*args, **kwargs):
         with monkeypatch.context() as m:
-            m.setattr(glints, "_PATCH_PX", 0)
+            m.setattr(glint_spots, "_PATCH_PX", 0)
             return detect_glints(*args, **kwargs)
     return detect
 
@@ -449,7 +449,7 @@ def test_patch_and_pixel_paths_agree_at_borders_and_on_large_spots(setup, pixel_
     saturated spot, a blended pair, a float frame (the noise model interpolated, not looked
     up); with patches up to 7 px, the larger spots of the frame go pixel by pixel, the smaller
     ones by patch."""
-    import estimator.glints as glints
+    import estimator.glint_spots as glint_spots
 
     rng = np.random.default_rng(30 + margin)
     g = np.array([[0.4, 200.2], [639.3, 300.7], [320.2, 0.3], [400.6, 479.2], [638.9, 479.4],
@@ -459,7 +459,7 @@ def test_patch_and_pixel_paths_agree_at_borders_and_on_large_spots(setup, pixel_
                             ).astype(np.uint16)
     frame = np.minimum(frame, FULL_SCALE_DN).astype(dtype)
     params = DetectionParams(centroid_margin_px=margin)
-    monkeypatch.setattr(glints, "_PATCH_PX", patch_px)
+    monkeypatch.setattr(glint_spots, "_PATCH_PX", patch_px)
     det = detect_glints(frame, setup, params=params)
     monkeypatch.undo()
     assert det.has(IMAGE_EDGE).sum() >= 4 and det.has(BLENDED).sum() == 2
@@ -602,7 +602,8 @@ def test_a_tight_window_measures_like_the_whole_frame(setup, sequence, pad):
     """A window a few pixels around the glints, its edges inside the top-hat line's reach
     (10 px) of the outermost ones: the window's top-hat, threshold, timing and centroids are
     the whole frame's."""
-    from estimator.glints import _detect, _NoiseModel
+    from estimator.glint_noise import _NoiseModel
+    from estimator.glints import _detect
     f, frame, g = sequence[2]
     noise = _NoiseModel.of_frame(frame, DetectionParams())
     whole = _detect(frame, setup, f, DetectionParams(), noise)[0]
@@ -645,7 +646,7 @@ def test_stream_checks_frames_like_detect_glints(setup):
 def test_noise_model_counted_and_sorted_agree():
     """Integer frames count, float frames sort: the same bins (level ties included), the same
     medians, as a brute-force median per bin; top-hat values beyond the counting cap too."""
-    from estimator.glints import _NoiseModel, _bin_medians_counted, _bin_medians_sorted
+    from estimator.glint_noise import _bin_medians_counted, _bin_medians_sorted, _NoiseModel
 
     rng = np.random.default_rng(4)
     params = DetectionParams()
@@ -672,7 +673,7 @@ def test_noise_model_counted_and_sorted_agree():
 
 @pytest.mark.parametrize("shape", [(480, 640), (7, 13), (1, 8), (3, 5)])
 def test_flat_true_is_flatnonzero(shape):
-    from estimator.glints import _flat_true
+    from estimator.glint_noise import _flat_true
 
     rng = np.random.default_rng(shape[1])
     for fill in (0.0, 0.001, 0.3, 1.0):
