@@ -147,8 +147,8 @@ def moving_sequence(setup, n_frames: int, rng):
     weighted by its own row weights, as the rolling shutter records them."""
     sc, eye = setup.screen, setup.eye
     n_targets = max(2, int(n_frames * setup.sensor.frame_period_s / 0.15) + 2)
-    targets = np.stack([rng.uniform(*sc.x_range_m, n_targets), rng.uniform(*sc.y_range_m, n_targets),
-                        np.full(n_targets, sc.z_m)], axis=1)
+    targets = np.stack([rng.uniform(*sc.x_range_m, n_targets),
+                        rng.uniform(*sc.y_range_m, n_targets), np.full(n_targets, sc.z_m)], axis=1)
     traj = saccade_sequence(eye, targets, rng)
     background = eye_background(setup.camera.height_px, setup.camera.width_px)
     frames, peak_speed = [], 0.0
@@ -182,12 +182,13 @@ def bench_stream(seconds: float, n_frames: int) -> None:
                and np.array_equal(a.flags, b.flags) for a, b in zip(*dets))
     t_whole, t_window = best_times([lambda: [whole(fr, f) for f, fr in frames],
                                     lambda: [window(fr, f) for f, fr in frames]], 2 * seconds)
-    print(f"  streaming, {n_frames} frames of an eye making saccades (peak {peak_speed:.0f} deg/s), "
-          f"{sum(map(len, dets[0])) / n_frames:.1f} glints per frame, a noise model and a whole-frame "
-          f"search every {window.refresh_frames} frames:")
+    print(f"  streaming, {n_frames} frames of an eye making saccades (peak {peak_speed:.0f} "
+          f"deg/s), {sum(map(len, dets[0])) / n_frames:.1f} glints per frame, a noise model and "
+          f"a whole-frame search every {window.refresh_frames} frames:")
     print(f"    whole frames:                    {n_frames / t_whole:6.0f} frames/s "
           f"({t_whole / n_frames * 1e3:.3f} ms per frame)")
-    print(f"    window around the glints (+{window.roi_margin_px} px): {n_frames / t_window:6.0f} frames/s "
+    print(f"    window around the glints (+{window.roi_margin_px} px): "
+          f"{n_frames / t_window:6.0f} frames/s "
           f"({t_window / n_frames * 1e3:.3f} ms per frame; {t_whole / t_window:.2f}x); "
           f"{windowed} of {n_frames} frames in the window alone, {retried} searched again whole; "
           f"detections {'the same' if same else 'DIFFERENT'}, centroids within {gap:.1e} px")

@@ -39,7 +39,7 @@ class _RowTable:
 
     local_index: np.ndarray  # (P,) pulse indices relative to the cached phase
     weights: np.ndarray  # (N + 2, P + 4)
-    total: np.ndarray  # (N + 2,) Σ_j w_j(y)
+    gain: np.ndarray  # (N + 2,) 1 / max(Σ_j w_j(y), band_weight_floor): the centroid's row gain
     dominant: np.ndarray  # (N + 2,) column of the largest weight (P + 1 for a dark row)
     below_plateau: np.ndarray  # (N + 3, P + 4) rows < k where a pulse's weight is below its
     # (1 - cut_tolerance) plateau, counted from the top
@@ -48,12 +48,13 @@ class _RowTable:
         """The table of the window of rows y0 .. y1 - 1, indexed as its own frame (row y0 is
         row 0; padded as before). Views: differences of ``below_plateau``'s running counts
         are unchanged."""
-        return _RowTable(self.local_index, self.weights[y0:y1 + 2], self.total[y0:y1 + 2],
+        return _RowTable(self.local_index, self.weights[y0:y1 + 2], self.gain[y0:y1 + 2],
                          self.dominant[y0:y1 + 2], self.below_plateau[y0:y1 + 3])
 
 
 @lru_cache(maxsize=64)
-def _row_table(sensor: Sensor, strobe: Strobe, phase_s: float, cut_tolerance: float) -> _RowTable:
+def _row_table(sensor: Sensor, strobe: Strobe, phase_s: float, cut_tolerance: float,
+               band_weight_floor: float) -> _RowTable:
     """The table of ``strobe`` with its phase set to ``phase_s`` (a key, not a new strobe per
     frame: building one costs more than the rest of the look-up)."""
     j, _, w = row_pulse_weights(sensor, replace(strobe, phase_s=phase_s), 0)
@@ -64,13 +65,14 @@ def _row_table(sensor: Sensor, strobe: Strobe, phase_s: float, cut_tolerance: fl
     dominant = np.where(total > 0, np.argmax(padded, axis=1), p + 2)
     below = np.zeros((n + 3, p + 4), dtype=np.int64)
     np.cumsum(padded < (1.0 - cut_tolerance) * padded.max(axis=0), axis=0, out=below[1:])
-    for a in (padded, total, dominant, below, j):
+    gain = 1.0 / np.maximum(total, band_weight_floor)
+    for a in (padded, gain, dominant, below, j):
         a.setflags(write=False)
-    return _RowTable(j, padded, total, dominant, below)
+    return _RowTable(j, padded, gain, dominant, below)
 
 
-def _frame_timing(sensor: Sensor, strobe: Strobe, frame_index: int,
-                  cut_tolerance: float) -> tuple[_RowTable, int]:
+def _frame_timing(sensor: Sensor, strobe: Strobe, frame_index: int, cut_tolerance: float,
+                  band_weight_floor: float) -> tuple[_RowTable, int]:
     """(row table, m): column c + 1 of the table is the global pulse ``local_index[c] - m``.
 
     Frame f sees pulse j start at s_j - t0_f = (phase - f Δt) + j Δ_clk. Writing
@@ -84,7 +86,7 @@ def _frame_timing(sensor: Sensor, strobe: Strobe, frame_index: int,
     delta = round((local - m * period) / _PHASE_QUANTUM_S) * _PHASE_QUANTUM_S
     if delta >= period:
         delta, m = delta - period, m + 1
-    return _row_table(sensor, strobe, delta, cut_tolerance), m
+    return _row_table(sensor, strobe, delta, cut_tolerance, band_weight_floor), m
 
 
 def _weights(px, img, top, noise: _NoiseModel, table: _RowTable, params: DetectionParams):
@@ -94,7 +96,7 @@ def _weights(px, img, top, noise: _NoiseModel, table: _RowTable, params: Detecti
     t = top[px.ys, px.xs].astype(np.float64)
     level = raw - t
     value = t - noise.floor(level)
-    gain = 1.0 / np.maximum(table.total[px.ys + 1], params.band_weight_floor)
+    gain = table.gain[px.ys + 1]
     weight = np.maximum(value - params.centroid_floor_sigma * noise.sigma(level), 0.0) * gain
     return raw, value, weight, gain
 
@@ -224,8 +226,7 @@ def _shape(sums, u0, v0):
     relative to (u0, v0)."""
     den = sums[0:4:3]  # Σw over usable and over own pixels
     den = np.where(den > 0, den, 1.0)
-    u = sums[1] / den[0] + u0
-    v = sums[2] / den[0] + v0
+    u, v = sums[1:3] / den[0] + np.stack([u0, v0])
     mx, my, mxx, myy, mxy = sums[4:] / den[1]  # mean x, y, x², y², xy over own pixels
     sxx, syy, sxy = mxx - mx * mx, myy - my * my, mxy - mx * my
     half_tr = 0.5 * (sxx + syy)
@@ -330,17 +331,16 @@ def _measure_patches(box: _Boxes, img, top, labels: _Labels, noise, table, param
     # noise model's tables hold its interpolation at every integer level).
     if raw.dtype.kind == "u":
         level = raw - t_raw  # the opening: no wrap-around
-        floors, sigmas, _ = noise.tables(int(level.max()))
+        floors, centroid_floors, _ = noise.tables(int(level.max()), params.centroid_floor_sigma)
         value = t - floors.take(level)
-        sigma = sigmas.take(level)
+        weight = t - centroid_floors.take(level)
     else:
         level = raw - t
         value = t - noise.floor(level)
-        sigma = noise.sigma(level)
+        weight = value - params.centroid_floor_sigma * noise.sigma(level)
     rows = np.minimum(rows, height - 1)
-    gain = 1.0 / np.maximum(table.total[rows + 1], params.band_weight_floor)
-    weight = (np.maximum(value - params.centroid_floor_sigma * sigma, 0.0)
-              * gain.take(lay.row, axis=1))
+    gain = table.gain.take(rows + 1)
+    weight = np.maximum(weight, 0.0, out=weight) * gain.take(lay.row, axis=1)
     # One product for the moments of the usable and own pixels' weights and each row's light.
     prod = np.concatenate([weight * usable, weight * own, np.maximum(value, 0.0) * usable]
                           ) @ lay.basis
@@ -364,7 +364,7 @@ def _measure_patches(box: _Boxes, img, top, labels: _Labels, noise, table, param
     dom = table.dominant[np.rint(v).astype(np.intp) + 1]
     pulse_weights = table.weights[(rows + 1)[:, :, None], dom[:, None, None] + np.arange(-1, 2)]
     light = np.concatenate([row_light.sum(axis=1)[None],
-                            (row_light[:, :, None] * pulse_weights).sum(axis=1).T])
+                            np.einsum("kr,krj->jk", row_light, pulse_weights)])
     return _Spots(u, v, flux, elong, neighbour, raw_peak, dom, light)
 
 

@@ -568,7 +568,7 @@ def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionPa
     if idx.size and top.dtype.kind == "u":
         t = top.ravel().take(idx)
         level = img.ravel().take(idx) - t  # the opening
-        idx = idx[t > noise.tables(int(level.max()))[2].take(level)]
+        idx = idx[t > noise.tables(int(level.max()), params.centroid_floor_sigma)[2].take(level)]
     elif idx.size:
         t = top.ravel()[idx].astype(np.float64)
         idx = idx[t > noise.threshold(img.ravel()[idx] - t)]  # level: the opening
@@ -597,7 +597,8 @@ def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionPa
 
     # 4: centroid, shape and light of every component over its box grown by the margin:
     # small boxes as one stack of equal patches, the rare large ones pixel by pixel.
-    table, m_off = _frame_timing(sensor, setup.strobe, frame_index, params.cut_tolerance)
+    table, m_off = _frame_timing(sensor, setup.strobe, frame_index, params.cut_tolerance,
+                                 params.band_weight_floor)
     if roi is not None:
         table = table.rows(y0, y0 + height)
     if comp.size < area.size:

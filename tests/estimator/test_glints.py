@@ -591,7 +591,8 @@ def test_a_glint_outside_the_window_waits_for_the_whole_frame_search(setup, sequ
     for f, frame, g in sequence[:4]:
         if f:
             frame = frame.copy()
-            frame[440:447, 600:607] += (300 * np.outer(np.hanning(7), np.hanning(7))).astype(np.uint16)
+            spot = 300 * np.outer(np.hanning(7), np.hanning(7))
+            frame[440:447, 600:607] += spot.astype(np.uint16)
         det = detector(frame, f)
         found.append(bool(((det.u_px > 590) & (det.v_px > 430)).any()))
     assert found == [False, False, False, True]
