@@ -2,7 +2,7 @@
 
 One validation run is rendered once per module (half resolution, conductor cornea, Mitsuba)
 and each metric is asserted in its own test. The fast suite renders 25 calibration frames and
-4 test frames at one strobe setting (~30 s on 2 cores); the slow test runs the whole quick
+12 test frames at one strobe setting (~15-40 s on 2 cores); the slow test runs the whole quick
 mode (every strobe setting of :data:`QUICK`). Both skip without Mitsuba.
 """
 
@@ -20,15 +20,22 @@ from scet_render.validate import (QUICK, ValidationConfig, calibration_setup, ru
 pytest.importorskip("mitsuba", reason="end-to-end validation renders with Mitsuba 3")
 
 #: Rendered vs feature-level simulated accuracy at the matching feature noise (deg): the image
-#: pipeline adds nothing the feature noise does not explain (brief: within 0.2 deg).
+#: pipeline adds nothing the feature noise does not explain (brief: within 0.2 deg). Medians of
+#: ~60 own-glint samples: one noise realisation of polynomial gaze scatters by ~0.6 deg per
+#: sample (measured), so fewer samples (4 frames, ~20) left the gap at 0.199 deg by chance.
 RENDER_VS_SIM_DEG = 0.2
+#: Where a rendered sample's error falls among the simulated errors at its own pose (0: below
+#: all, 1: above all), averaged over the samples: 0.5 when the renders hold no error the
+#: feature noise does not explain. One sample's rank is uniform (SD 0.29), so the mean of ~60
+#: has SD 0.04; 0.15 is ~4 SD, and an extra 0.1 px of centroid noise moves it further.
+RANK_TOLERANCE = 0.15
 #: Share of identified glints with the right light (brief: >= 99 %).
 MIN_IDENTITY_RATE = 0.99
 #: Geometric gaze on conductor renders at half resolution: the rendered centroids are within
 #: ~0.15 px RMS of the closed-form glints, which the paper's Fig. 8 maps to well under 0.5 deg.
 GEOMETRIC_MEDIAN_DEG = 0.5
 
-SMALL = ValidationConfig(scale=2, spp=4, cornea="conductor", frames=4, pulses_per_frame=(16,))
+SMALL = ValidationConfig(scale=2, spp=4, cornea="conductor", frames=12, pulses_per_frame=(16,))
 SOURCES = ("rendered", "simulated")
 METHODS = ("polynomial", "geometric")
 
@@ -99,6 +106,22 @@ def test_rendered_accuracy_matches_the_feature_level_simulation(result, method):
         s = _median(result.errors_deg[("simulated", ppf, method)])
         assert abs(r - s) < RENDER_VS_SIM_DEG, (
             f"{method}, {ppf} pulses/frame: rendered {r:.3f} deg, simulated {s:.3f} deg")
+
+
+@pytest.mark.parametrize("method", ["polynomial", "geometric"])
+def test_rendered_errors_rank_like_simulated_ones(result, method):
+    """Pose by pose: each rendered sample's error against the simulated errors of the same
+    pose and lights (``SIM_REPEATS`` noise realisations)."""
+    from scet_render.validate import SIM_REPEATS
+
+    for ppf in result.config.pulses_per_frame:
+        rendered = result.own_errors(method, ppf)
+        simulated = result.errors_deg[("simulated", ppf, method)].reshape(SIM_REPEATS, -1)
+        own = np.isfinite(rendered)
+        assert own.sum() >= 30 and np.isfinite(simulated[:, own]).all()
+        rank = float((simulated[:, own] < rendered[own]).mean())
+        assert abs(rank - 0.5) < RANK_TOLERANCE, (
+            f"{method}, {ppf} pulses/frame: mean rank {rank:.3f} over {own.sum()} samples")
 
 
 def test_prior_assisted_samples_are_reported_apart(result):
