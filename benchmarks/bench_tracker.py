@@ -32,7 +32,8 @@ from estimator.calibration import Calibration, fit_gaze_mapping  # noqa: E402
 from estimator.gaze import fit_cornea_centers  # noqa: E402
 from estimator.glints import detect_glints  # noqa: E402
 from estimator.scene import load_scene  # noqa: E402
-from estimator.tracker import Tracker, iter_folder  # noqa: E402
+from estimator.folders import iter_folder  # noqa: E402
+from estimator.tracker import Tracker  # noqa: E402
 from scet_render.simulate import ground_truth_glints  # noqa: E402
 
 

@@ -162,7 +162,7 @@ def cmd_export_mitsuba(args) -> int:
 
 def cmd_calibrate(args) -> int:
     from estimator.scene import load_scene
-    from estimator.tracker import calibrate_from_folder, save_calibration
+    from estimator.folders import calibrate_from_folder, save_calibration
 
     setup = load_scene(args.scene)
     cal = calibrate_from_folder(args.dir, setup)
@@ -173,7 +173,7 @@ def cmd_calibrate(args) -> int:
 
 def cmd_track(args) -> int:
     from estimator.scene import load_scene
-    from estimator.tracker import load_calibration, track_folder
+    from estimator.folders import load_calibration, track_folder
 
     setup = load_scene(args.scene)
     cal = load_calibration(args.calibration)

@@ -42,10 +42,9 @@ from estimator.gaze import geometric_gaze, polynomial_gaze, screen_intersection
 from estimator.metrics import angular_error_deg, summarize_errors
 from estimator.scene import load_scene
 from estimator.setup import Setup
-from estimator.tracker import (FRAMES_DIR, MAX_RESIDUAL_PX, RESIDUAL_TOO_LARGE, BandPrior,
-                               _atomic_write,
-                               calibrate_from_folder, samples_csv, save_calibration,
-                               timing_document, track_folder)
+from estimator.folders import (FRAMES_DIR, _atomic_write, calibrate_from_folder, samples_csv,
+                               save_calibration, timing_document, track_folder)
+from estimator.tracker import MAX_RESIDUAL_PX, RESIDUAL_TOO_LARGE, BandPrior
 
 #: A detection is the glint of a light when it lies within this distance of the light's
 #: ground-truth glint (px at the rendered resolution): rendered centroids sit within ~0.3 px
@@ -560,7 +559,7 @@ def _overlay(test_dir: Path, setup: Setup, samples, path: Path) -> None:
 
     from estimator.banding import band_layout
     from estimator.glints import detect_glints
-    from estimator.tracker import frame_path, read_frame
+    from estimator.folders import frame_path, read_frame
 
     counts = {}
     for s in samples:

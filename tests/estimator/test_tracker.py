@@ -15,10 +15,10 @@ from estimator.banding import band_layout, row_pulse_weights
 from estimator.calibration import Calibration, fit_gaze_mapping
 from estimator.gaze import fit_cornea_centers
 from estimator.scene import load_scene
+from estimator.folders import (load_calibration, read_samples_csv, read_timing,
+                               save_calibration, timing_document, track_folder)
 from estimator.tracker import (INTERNAL_ERROR, SATURATED_FRAME, UNREADABLE_FRAME,
-                               WRONG_FRAME_SIZE, BandPrior, Tracker, TrackerInputError,
-                               load_calibration, read_samples_csv, read_timing, save_calibration,
-                               timing_document, track_folder)
+                               WRONG_FRAME_SIZE, BandPrior, Tracker, TrackerInputError)
 from scet_render.simulate import ground_truth_glints
 
 DT = None
@@ -294,7 +294,7 @@ def test_a_prior_does_not_smooth_a_saccade_away(setup):
 
 def test_samples_csv_marks_prior_assisted_samples_and_reads_version_1(tmp_path, setup,
                                                                       calibration):
-    from estimator.tracker import samples_csv
+    from estimator.folders import samples_csv
 
     img, k, _ = sparse_band_frame(setup)
     out = Tracker(setup, calibration).process(img, 0)

@@ -13,7 +13,7 @@ import pytest
 
 from estimator.calibration import Calibration
 from estimator.scene import load_scene
-from estimator.tracker import read_samples_csv
+from estimator.folders import read_samples_csv
 from scet_render.validate import (QUICK, ValidationConfig, calibration_setup, run_validation,
                                   strobe_setup)
 
