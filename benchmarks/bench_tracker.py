@@ -1,9 +1,10 @@
 """Tracker throughput on one core: glint detection frames/s and end-to-end samples/s.
 
 Frames: 640x480 10-bit banded frames of paper_sim (Gaussian glints at their closed-form
-positions for a moving eye, every pulse's row weights, an eye-like background, shot and read
-noise; :func:`bench_glints.banded_frame`), or with ``--dataset DIR`` the PNG frames of a
-rendered dataset. Detection is timed through :func:`estimator.glints.detect_glints`; the
+positions for an eye making saccades, each pulse's glints at the eye's pose then, every pulse's
+row weights, an eye-like background, shot and read noise; :func:`bench_glints.moving_sequence`),
+or with ``--dataset DIR`` the PNG frames of a rendered dataset. Detection is timed through
+:class:`estimator.glints.GlintDetector` (one pass over the frames as a stream); the
 end-to-end figure through :meth:`estimator.tracker.Tracker.process` (detect, group by strobe,
 match with the previous sample as prior, fit, map), both gaze methods. Usage:
 
@@ -26,11 +27,11 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_glints import banded_frame  # noqa: E402
+from bench_glints import moving_sequence  # noqa: E402
 
 from estimator.calibration import Calibration, fit_gaze_mapping  # noqa: E402
 from estimator.gaze import fit_cornea_centers  # noqa: E402
-from estimator.glints import detect_glints  # noqa: E402
+from estimator.glints import GlintDetector  # noqa: E402
 from estimator.scene import load_scene  # noqa: E402
 from estimator.folders import iter_folder  # noqa: E402
 from estimator.tracker import Tracker  # noqa: E402
@@ -47,14 +48,9 @@ def ground_truth_calibration(setup) -> Calibration:
 
 
 def synthetic_frames(setup, n: int, rng):
-    targets = setup.screen.grid(24, 15)[rng.choice(360, n)]
-    yaw, pitch = setup.eye.angles_toward(targets)
-    out = []
-    for f in range(n):
-        g, vis, _ = ground_truth_glints(setup, yaw[f], pitch[f])
-        k = int(vis.sum())
-        out.append((f, banded_frame(setup, g[vis], np.full(k, 1.2), np.full(k, 600.0), rng, f)))
-    return out
+    """Frames of an eye making saccades between random screen targets
+    (:func:`bench_glints.moving_sequence`: each pulse's glints at the eye's pose then)."""
+    return moving_sequence(setup, n, rng)[0]
 
 
 def main(argv=None):
@@ -79,13 +75,13 @@ def main(argv=None):
     print(f"{platform.processor() or platform.machine()}, {len(frames)} frames "
           f"{setup.camera.width_px}x{setup.camera.height_px}, one core")
 
-    for f, img in frames[:2]:
-        detect_glints(img, setup, f)  # warm caches
+    detector = GlintDetector(setup)
     t = time.perf_counter()
-    n_glints = sum(len(detect_glints(img, setup, f)) for f, img in frames)
+    n_glints = sum(len(detector(img, f)) for f, img in frames)
     dt = time.perf_counter() - t
-    print(f"detection: {len(frames) / dt:.1f} frames/s ({1e3 * dt / len(frames):.2f} ms/frame, "
-          f"{n_glints / len(frames):.1f} glints/frame)")
+    print(f"detection (GlintDetector, one pass): {len(frames) / dt:.1f} frames/s "
+          f"({1e3 * dt / len(frames):.2f} ms/frame, {n_glints / len(frames):.1f} glints/frame, "
+          f"{detector.windowed} of {detector.frames} frames in a window)")
 
     cal = ground_truth_calibration(setup)
     for method in ("polynomial", "geometric"):
