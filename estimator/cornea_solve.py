@@ -15,7 +15,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .eye import gaze_direction
-from .projection import _jacobian_terms, _radius_rows, glint_jacobians, project_glints
+from .projection import _centre_fit_rows, _jacobian_terms, _radius_rows, glint_jacobians, project_glints
 
 if TYPE_CHECKING:
     from .cornea import FitProblem
@@ -111,46 +111,71 @@ def normal_equations(model, problem: FitProblem, x, glints, mask, lights=None, p
     prior's terms: all that LM needs, without keeping the (B, 2n, p) Jacobian.
 
     ``lights`` (B, k, 3), if given, replaces the problem's lights (gathered glints: each
-    sample's seen glints first). The centre's rows are summed in the camera frame and rotated
-    once per sample (J_world = J_camera R); the orbit's follow by the chain rule (Dᵀ JᵀJ D)."""
+    sample's seen glints first). The centre's rows come from
+    :func:`estimator.projection._centre_fit_rows` in a basis per sample, are summed by one
+    matrix product per sample and turned to world axes once (J_world = J_b N); the orbit's
+    follow by the chain rule (Dᵀ JᵀJ D)."""
     if model == "full":
         r, J = residuals_and_jacobian(model, problem, x, glints, mask)
         Jt = J.transpose(0, 2, 1)
         cost, JtJ, Jtr = np.einsum("bi,bi->b", r, r), Jt @ J, (Jt @ r[..., None])[..., 0]
     else:
         center, radius, _ = unpack(model, problem, x)
-        T = _jacobian_terms(problem.camera, center, radius,
-                            problem.lights_world_m if lights is None else lights, with_visibility=False)
-        # A masked glint's rows and residual are zero; where() also drops the NaN of a glint
-        # behind the camera.
-        ru = np.where(mask, T.u - glints[..., 0], 0.0)
-        rv = np.where(mask, T.v - glints[..., 1], 0.0)
-        cols_u, cols_v = list(T.row_u), list(T.row_v)
+        L = problem.lights_world_m if lights is None else lights
         if model == "center_radius":
-            du, dv = _radius_rows(T)
-            cols_u.append(du)
-            cols_v.append(dv)
-        Ju = [np.where(mask, a, 0.0) for a in cols_u]
-        Jv = [np.where(mask, a, 0.0) for a in cols_v]
-        q = len(Ju)
-        B = mask.shape[0]
-        JtJ = np.empty((B, q, q))
-        for i in range(q):
-            for j in range(i, q):
-                JtJ[:, i, j] = JtJ[:, j, i] = np.add.reduce(Ju[i] * Ju[j] + Jv[i] * Jv[j], axis=1)
-        Jtr = np.stack([np.add.reduce(Ju[i] * ru + Jv[i] * rv, axis=1) for i in range(q)], -1)
-        cost = np.add.reduce(ru * ru + rv * rv, axis=1)
-        M = np.eye(q)
-        M[:3, :3] = problem.camera.rotation
+            cost, JtJ, Jtr = _general_sums(problem.camera, center, radius, L, glints, mask, True)
+        else:
+            # One product per sample sums the fast path's rows; the few samples it does not
+            # handle take the general path. (A product of an array with itself sums every
+            # sample the same way whatever the batch, so blocks give the same answers.)
+            G, N, fast = _centre_fit_rows(problem.camera, center, radius, L, glints, mask)
+            S = G @ np.swapaxes(G, 1, 2)
+            fast &= np.isfinite(S).all(axis=(1, 2))
+            Nt = np.swapaxes(N, 1, 2)
+            cost = S[:, 3, 3].copy()
+            JtJ = Nt @ S[:, :3, :3] @ N
+            Jtr = (Nt @ S[:, :3, 3:])[..., 0]
+            if not fast.all():
+                s = ~fast
+                cost[s], JtJ[s], Jtr[s] = _general_sums(
+                    problem.camera, center[s], radius, L if L.ndim == 2 else L[s], glints[s], mask[s], False)
         if model == "orbit":
-            M = M @ orbit_derivative(problem, x)  # (B, 3, 2)
-        Mt = np.swapaxes(M, -1, -2)
-        JtJ, Jtr = Mt @ JtJ @ M, (Jtr[:, None, :] @ M)[:, 0]
+            D = orbit_derivative(problem, x)  # (B, 3, 2)
+            Dt = np.swapaxes(D, -1, -2)
+            JtJ, Jtr = Dt @ JtJ @ D, (Jtr[:, None, :] @ D)[:, 0]
     if prior is not None and prior.present.any():
         d = x - prior.mean
         Ld = (prior.information @ d[..., None])[..., 0]
         cost, JtJ, Jtr = cost + np.einsum("bi,bi->b", d, Ld), JtJ + prior.information, Jtr + Ld
     return cost, JtJ, Jtr
+
+
+def _general_sums(camera, center, radius, lights, glints, mask, with_radius: bool):
+    """Cost, JᵀJ and Jᵀr with respect to the world centre (and the radius) from
+    :func:`estimator.projection._jacobian_terms`: the path for every geometry."""
+    T = _jacobian_terms(camera, center, radius, lights, with_visibility=False)
+    # A masked glint's rows and residual are zero; where() also drops the NaN of a glint
+    # behind the camera.
+    ru = np.where(mask, T.u - glints[..., 0], 0.0)
+    rv = np.where(mask, T.v - glints[..., 1], 0.0)
+    cols_u, cols_v = list(T.row_u), list(T.row_v)
+    if with_radius:
+        du, dv = _radius_rows(T)
+        cols_u.append(du)
+        cols_v.append(dv)
+    Ju = [np.where(mask, a, 0.0) for a in cols_u]
+    Jv = [np.where(mask, a, 0.0) for a in cols_v]
+    q = len(Ju)
+    B = mask.shape[0]
+    JtJ = np.empty((B, q, q))
+    for i in range(q):
+        for j in range(i, q):
+            JtJ[:, i, j] = JtJ[:, j, i] = np.add.reduce(Ju[i] * Ju[j] + Jv[i] * Jv[j], axis=1)
+    Jtr = np.stack([np.add.reduce(Ju[i] * ru + Jv[i] * rv, axis=1) for i in range(q)], -1)
+    cost = np.add.reduce(ru * ru + rv * rv, axis=1)
+    M = np.eye(q)
+    M[:3, :3] = camera.rotation
+    return cost, M.T @ JtJ @ M, (Jtr[:, None, :] @ M)[:, 0]
 
 
 def shared_first_step(model, problem: FitProblem, glints, mask, x_ref, enough):
