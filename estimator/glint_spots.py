@@ -226,7 +226,8 @@ def _shape(sums, u0, v0):
     relative to (u0, v0)."""
     den = sums[0:4:3]  # Σw over usable and over own pixels
     den = np.where(den > 0, den, 1.0)
-    u, v = sums[1:3] / den[0] + np.stack([u0, v0])
+    u = sums[1] / den[0] + u0
+    v = sums[2] / den[0] + v0
     mx, my, mxx, myy, mxy = sums[4:] / den[1]  # mean x, y, x², y², xy over own pixels
     sxx, syy, sxy = mxx - mx * mx, myy - my * my, mxy - mx * my
     half_tr = 0.5 * (sxx + syy)
