@@ -676,23 +676,22 @@ class GlintMatcher:
         # Final assignment at the final gate, the arc order enforced, and one more refit where
         # it changed the matches.
         X = X[keep]
-        pred, cand, _ = self._candidates(X, lo, hi)
-        assigns = [self._enforce_order(g, pred[a], self._assign(g, pred[a], cand[a], p.gate_px)[0])
-                   for a in range(keep.size)]
-        changed = [a for a in range(keep.size)
-                   if prev[keep[a]] is None or not np.array_equal(assigns[a], prev[keep[a]])]
-        changed = [a for a in changed if (assigns[a] >= 0).any()]
+        pred, cand, inside = self._candidates(X, lo, hi)
+        final = [self._final_assign(g, pred[a], cand[a]) for a in range(keep.size)]
+        changed = [a for a in range(keep.size) if (final[a][0] >= 0).any() and (
+            prev[keep[a]] is None or not np.array_equal(final[a][0], prev[keep[a]]))]
         ok = fit_ok[keep].copy()
         if changed:
-            X[changed], ok_c = self._fit(g, [assigns[a] for a in changed], X[changed], fit_prior)
+            # Hypotheses whose matches stand keep their pose, predictions and matches.
+            X[changed], ok_c = self._fit(g, [final[a][0] for a in changed], X[changed], fit_prior)
             ok[changed] = ok_c
-        pred, cand, inside = self._candidates(X, lo, hi)
+            pred[changed], cand[changed], inside[changed] = self._candidates(X[changed], lo, hi)
+            for a in changed:
+                final[a] = self._final_assign(g, pred[a], cand[a])
         sigma2 = p.noise_px ** 2
         out = []
         for a in range(keep.size):
-            assign, dist = self._assign(g, pred[a], cand[a], p.gate_px)
-            assign = self._enforce_order(g, pred[a], assign)
-            dist = np.where(assign >= 0, dist, np.nan)
+            assign, dist = final[a]
             matched = assign >= 0
             detected = np.zeros(self.lights_world_m.shape[0], dtype=bool)
             detected[assign[matched]] = True
@@ -702,6 +701,13 @@ class GlintMatcher:
             out.append(_Hypothesis(X[a].copy(), assign, dist, pred[a], cand[a], float(score),
                                    int(iters[keep[a]]), bool(ok[a])))
         return out
+
+    def _final_assign(self, g, pred, cand):
+        """Assignment at the final gate with the arc order enforced, and its distances (NaN
+        where unmatched)."""
+        assign, dist = self._assign(g, pred, cand, self.params.gate_px)
+        assign = self._enforce_order(g, pred, assign)
+        return assign, np.where(assign >= 0, dist, np.nan)
 
     def _enforce_order(self, g, pred, assign):
         """Drop matches that break the lights' order along their arc (module docstring, 3)."""
