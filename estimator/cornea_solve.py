@@ -200,7 +200,8 @@ def shared_first_step(model, problem: FitProblem, glints, mask, x_ref, enough):
     B, p = mask.shape[0], J0.shape[-1]
     # Σ over the seen lights as matrix products (einsum's own loops are several times slower).
     A = (mask.astype(float) @ JtJ_i.reshape(n, p * p)).reshape(B, p, p)
-    d = np.where(mask[..., None], glints - g0, 0.0)
+    d = glints - g0  # finite: the glints are prepared, g0 zero where unusable
+    d *= mask[..., None]
     rhs = d.reshape(B, 2 * n) @ J0.reshape(2 * n, p)
     x = np.broadcast_to(x_ref, (glints.shape[0], x_ref.size)).copy()
     # Solvable: Hadamard's ratio det(A) / Π diag(A) of the positive semi-definite A (1 for an
@@ -264,7 +265,9 @@ def _lm_block(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_
     # The stopping step in each unknown's unit: metres of cornea-centre motion for the orbit's
     # angles (r_co per radian).
     gn_stop = 0.0 if model in _CAUTIOUS else _GN_STOP / problem.orbit_radius_m if model == "orbit" else _GN_STOP
-    x = np.clip(x0, lo, hi)
+    # Without bounds (the usual case) the active set and the clipping are skipped.
+    bounded = bool(np.isfinite(lo).any() or np.isfinite(hi).any())
+    x = np.clip(x0, lo, hi) if bounded else x0.copy()
     active = enough.copy()
     iters = np.zeros(B, dtype=int)
     converged = np.zeros(B, dtype=bool)
@@ -275,6 +278,7 @@ def _lm_block(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_
     JtJ = np.zeros((B, p, p))
     Jtr = np.zeros((B, p))
     eye = np.eye(p)
+    on_diag = slice(None, None, p + 1)
     idx = np.flatnonzero(active)
     if idx.size:
         cost[idx], JtJ[idx], Jtr[idx] = evaluate(x[idx], idx)
@@ -283,21 +287,21 @@ def _lm_block(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_
         if idx.size == 0:
             break
         H, g = JtJ[idx], Jtr[idx]
-        diag = np.einsum("bii->bi", H)
-        A = H + (lam[idx, None] * np.maximum(diag, 1e-30))[..., None] * eye
+        A = H.copy()
+        A.reshape(-1, p * p)[:, on_diag] += lam[idx, None] * np.maximum(H.reshape(-1, p * p)[:, on_diag], 1e-30)
         # Active set: an unknown sitting on a bound whose gradient pushes it outward is held
         # there (its row and column of the system become identity), so the others still reach
         # the constrained minimum instead of being dragged by a clipped step.
         xi = x[idx]
-        held = ((xi <= lo) & (g > 0)) | ((xi >= hi) & (g < 0))
+        held = ((xi <= lo) & (g > 0)) | ((xi >= hi) & (g < 0)) if bounded else None
         rhs = g
-        if held.any():
+        if bounded and held.any():
             free = ~held
             A = A * free[:, :, None] * free[:, None, :] + held[:, :, None] * eye
             rhs = g * free
         with np.errstate(invalid="ignore", over="ignore"):
             step = -np.linalg.solve(A, rhs[..., None])[..., 0]
-        x_new = np.clip(xi + step, lo, hi)
+        x_new = np.clip(xi + step, lo, hi) if bounded else xi + step
         step = x_new - xi
         # A step the model cannot evaluate (a singular system's non-finite step, a radius
         # driven through zero) counts as a rejected step: more damping, same point.

@@ -805,37 +805,42 @@ def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask
         w3 -= tmp
         np.multiply(w3, cz, out=w2)
         w3 *= sz
-        # Reflection points P = c + r n in the camera frame (units of r) and the pinhole.
+        # Reflection points P = c + r n in the camera frame (units of r).
         np.multiply(st, cz, out=P[:, 1])
         np.multiply(st, sz, out=P[:, 2])
         P[:, 3] = 1.0
         Mc = np.concatenate([np.swapaxes(M, 1, 2), c[:, :, None]], axis=2)
         XYZ = np.matmul(Mc, P, out=get("XYZ", (B, 3, n)))
-        H = get("H", (B, 3, n))
-        iz = XYZ[:, 2]
+        xz, yz, iz = XYZ[:, 0], XYZ[:, 1], XYZ[:, 2]
         np.divide(1.0, iz, out=iz)
-        H[:, 0] = 1.0
-        xz, yz = H[:, 1], H[:, 2]
-        np.multiply(XYZ[:, 0], iz, out=xz)
-        np.multiply(XYZ[:, 1], iz, out=yz)
-    # π = the pinhole rows (1, 0, -X/Z) and (0, 1, -Y/Z) in the basis, as (B, 6, n).
+    xz *= iz
+    yz *= iz
+    # Residuals (u, v) - glints where masked; H = (f_x / z) (1, x/z, y/z) where masked.
+    G = get("G", (B, 4, 2, n))
+    H = get("H", (B, 3, n))
+    fm = w[0]
+    for row, (proj, f_px, c_px) in enumerate(((xz, camera.fx_px, camera.cx_px), (yz, camera.fy_px, camera.cy_px))):
+        np.multiply(mask, f_px, out=fm)
+        if row == 0:
+            np.multiply(fm, iz, out=H[:, 0])
+        np.subtract(glints[..., row], c_px, out=tmp)
+        tmp *= 1.0 / f_px
+        res = G[:, 3, row]
+        np.subtract(proj, tmp, out=res)
+        res *= fm
+    np.multiply(H[:, 0], xz, out=H[:, 1])
+    np.multiply(H[:, 0], yz, out=H[:, 2])
+    # π: the pinhole rows (1, 0, -x/z) and (0, 1, -y/z) in the basis, times f / z, as Mp H
+    # (the v rows' coefficients carry f_y / f_x).
     Mp = np.zeros((B, 6, 3))
     Mp[:, :3, 0], Mp[:, :3, 1] = M[:, :, 0], -M[:, :, 2]
     Mp[:, 3:, 0], Mp[:, 3:, 2] = M[:, :, 1], -M[:, :, 2]
+    Mp[:, 3:] *= camera.fy_px / camera.fx_px
     pi = np.matmul(Mp, H, out=get("pi", (B, 6, n)))
-    G = get("G", (B, 4, 2, n))
     T, K = w[9], w[10]
-    for row, (proj, f_px, c_px) in enumerate(((xz, camera.fx_px, camera.cx_px), (yz, camera.fy_px, camera.cy_px))):
-        f = w[0] if row == 0 else w[11]
-        np.multiply(mask, f_px, out=f)
-        res = G[:, 3, row]
-        np.subtract(glints[..., row], c_px, out=tmp)
-        tmp *= 1.0 / f_px
-        np.subtract(proj, tmp, out=res)
-        res *= f
-        f *= iz  # f / Z in px per radius where masked, else 0
+    for row in range(2):
         p1, p2, p3 = pi[:, 3 * row], pi[:, 3 * row + 1], pi[:, 3 * row + 2]
-        # T = π · t, K = m_k π · k; row = f (π - T w - K k).
+        # T = π · t, K = m_k π · k; the row is π - T w - K k.
         np.multiply(p2, cz, out=T)
         np.multiply(p3, sz, out=tmp)
         T += tmp
@@ -847,18 +852,15 @@ def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask
         K -= tmp
         K *= m_k
         np.multiply(T, w1, out=tmp)
-        p1 -= tmp
-        np.multiply(p1, f, out=G[:, 0, row])
+        np.subtract(p1, tmp, out=G[:, 0, row])
         np.multiply(T, w2, out=tmp)
         p2 -= tmp
         np.multiply(K, sz, out=tmp)
-        p2 += tmp
-        np.multiply(p2, f, out=G[:, 1, row])
+        np.add(p2, tmp, out=G[:, 1, row])
         np.multiply(T, w3, out=tmp)
         p3 -= tmp
         np.multiply(K, cz, out=tmp)
-        p3 -= tmp
-        np.multiply(p3, f, out=G[:, 2, row])
+        np.subtract(p3, tmp, out=G[:, 2, row])
     return G.reshape(B, 4, 2 * n), (M @ R) * (1.0 / radius), fast
 
 
