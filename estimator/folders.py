@@ -131,14 +131,20 @@ def _read_json(path: Path):
         raise TrackerInputError(f"{path}: cannot read JSON ({exc})") from None
 
 
+def check_format(data, path, fmt: str, version: int, error=TrackerInputError) -> None:
+    """Raise ``error`` naming ``path`` unless the parsed JSON document ``data`` is an object
+    whose "format" is ``fmt`` and whose "version" is ``version`` (SCET's versioned files)."""
+    if not isinstance(data, dict) or data.get("format") != fmt:
+        got = data.get("format") if isinstance(data, dict) else type(data).__name__
+        raise error(f"{path}: format is {got!r}, expected {fmt!r}")
+    if data.get("version") != version:
+        raise error(f"{path}: this SCET reads {fmt} version {version}, the file says "
+                    f"{data.get('version')!r}")
+
+
 def _parse_timing(path: Path) -> FolderTiming:
     data = _read_json(path)
-    if not isinstance(data, dict) or data.get("format") != TIMING_FORMAT:
-        got = data.get("format") if isinstance(data, dict) else type(data).__name__
-        raise TrackerInputError(f"{path}: format is {got!r}, expected {TIMING_FORMAT!r}")
-    if data.get("version") != TIMING_VERSION:
-        raise TrackerInputError(f"{path}: this SCET reads {TIMING_FORMAT} version {TIMING_VERSION},"
-                                f" the file says {data.get('version')!r}")
+    check_format(data, path, TIMING_FORMAT, TIMING_VERSION)
     frames = data.get("frames")
     if not isinstance(frames, dict) or not frames:
         raise TrackerInputError(f"{path}: key 'frames' must be a non-empty object "

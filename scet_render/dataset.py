@@ -67,6 +67,7 @@ from typing import Callable, Iterator
 import numpy as np
 
 from estimator.banding import band_layout
+from estimator.folders import check_format
 from estimator.setup import Setup
 from scet_render.motion import FixationalNoise, Trajectory, fixation_sequence, saccade_sequence
 from scet_render.sensor import SensorModel
@@ -619,12 +620,7 @@ def read_manifest(path) -> dict:
         raise DatasetError(f"{file}: no such file; not a SCET dataset") from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise DatasetError(f"{file}: cannot read the manifest ({exc})") from None
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
-        got = data.get("format") if isinstance(data, dict) else type(data).__name__
-        raise DatasetError(f"{file}: format is {got!r}, expected {FORMAT!r}")
-    if data.get("version") != VERSION:
-        raise DatasetError(f"{file}: this SCET reads {FORMAT} version {VERSION}, the file says "
-                           f"{data.get('version')!r}")
+    check_format(data, file, FORMAT, VERSION, DatasetError)
     return data
 
 
