@@ -632,7 +632,7 @@ class _Scratch(threading.local):
 _scratch = _Scratch()
 
 
-def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask):
+def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask, rows: bool = True):
     """Residuals and rows of d glint / d centre of a cornea-centre fit, packed so that one
     matrix product per sample gives its normal equations.
 
@@ -767,6 +767,33 @@ def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask
         np.subtract(cpsi, spsi, out=s1)
         if not (st.min() >= 0 and s1.min() >= -1e-15):
             fast &= _rows_all(st >= 0) & _rows_all(s1 >= -1e-15)
+        # Reflection points P = c + r n in the camera frame (units of r).
+        np.multiply(st, cz, out=P[:, 1])
+        np.multiply(st, sz, out=P[:, 2])
+        P[:, 3] = 1.0
+        Mc = np.concatenate([np.swapaxes(M, 1, 2), c[:, :, None]], axis=2)
+        XYZ = np.matmul(Mc, P, out=get("XYZ", (B, 3, n)))
+        xz, yz, iz = XYZ[:, 0], XYZ[:, 1], XYZ[:, 2]
+        np.divide(1.0, iz, out=iz)
+        xz *= iz
+        yz *= iz
+        # Residuals (u, v) - glints where masked; H = (f_x / z) (1, x/z, y/z) where masked.
+        G = get("G", (B, 4, 2, n))
+        H = get("H", (B, 3, n))
+        fm, tmp = w[11], w[10]
+        for row, (proj, f_px, c_px) in enumerate(((xz, camera.fx_px, camera.cx_px), (yz, camera.fy_px, camera.cy_px))):
+            np.multiply(mask, f_px, out=fm)
+            if row == 0:
+                np.multiply(fm, iz, out=H[:, 0])
+            np.subtract(glints[..., row], c_px, out=tmp)
+            tmp *= 1.0 / f_px
+            res = G[:, 3, row]
+            np.subtract(proj, tmp, out=res)
+            res *= fm
+        if not rows:
+            return G[:, 3].reshape(B, 2 * n), None, fast
+        np.multiply(H[:, 0], xz, out=H[:, 1])
+        np.multiply(H[:, 0], yz, out=H[:, 2])
         # Distances to camera and light over r, incidence angle and the terms of dP/dc of
         # _jacobian_terms: rH = r (1/d_u + 1/d_w), rD = r (1/d_w - 1/d_u), g, m_k, m_t, b_tn.
         cos_i, inv_qa, sin_i, rH, inv_g, m_k = w[2], w[3], w[5], w[6], w[7], w[8]
@@ -805,31 +832,6 @@ def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask
         w3 -= tmp
         np.multiply(w3, cz, out=w2)
         w3 *= sz
-        # Reflection points P = c + r n in the camera frame (units of r).
-        np.multiply(st, cz, out=P[:, 1])
-        np.multiply(st, sz, out=P[:, 2])
-        P[:, 3] = 1.0
-        Mc = np.concatenate([np.swapaxes(M, 1, 2), c[:, :, None]], axis=2)
-        XYZ = np.matmul(Mc, P, out=get("XYZ", (B, 3, n)))
-        xz, yz, iz = XYZ[:, 0], XYZ[:, 1], XYZ[:, 2]
-        np.divide(1.0, iz, out=iz)
-    xz *= iz
-    yz *= iz
-    # Residuals (u, v) - glints where masked; H = (f_x / z) (1, x/z, y/z) where masked.
-    G = get("G", (B, 4, 2, n))
-    H = get("H", (B, 3, n))
-    fm = w[0]
-    for row, (proj, f_px, c_px) in enumerate(((xz, camera.fx_px, camera.cx_px), (yz, camera.fy_px, camera.cy_px))):
-        np.multiply(mask, f_px, out=fm)
-        if row == 0:
-            np.multiply(fm, iz, out=H[:, 0])
-        np.subtract(glints[..., row], c_px, out=tmp)
-        tmp *= 1.0 / f_px
-        res = G[:, 3, row]
-        np.subtract(proj, tmp, out=res)
-        res *= fm
-    np.multiply(H[:, 0], xz, out=H[:, 1])
-    np.multiply(H[:, 0], yz, out=H[:, 2])
     # π: the pinhole rows (1, 0, -x/z) and (0, 1, -y/z) in the basis, times f / z, as Mp H
     # (the v rows' coefficients carry f_y / f_x).
     Mp = np.zeros((B, 6, 3))
@@ -837,7 +839,7 @@ def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask
     Mp[:, 3:, 0], Mp[:, 3:, 2] = M[:, :, 1], -M[:, :, 2]
     Mp[:, 3:] *= camera.fy_px / camera.fx_px
     pi = np.matmul(Mp, H, out=get("pi", (B, 6, n)))
-    T, K = w[9], w[10]
+    T, K, tmp = w[9], w[10], w[4]
     for row in range(2):
         p1, p2, p3 = pi[:, 3 * row], pi[:, 3 * row + 1], pi[:, 3 * row + 2]
         # T = π · t, K = m_k π · k; the row is π - T w - K k.
