@@ -188,30 +188,34 @@ def _general_sums(camera, center, radius, lights, glints, mask, with_radius: boo
 class StartModel(NamedTuple):
     """The glints' Jacobian with respect to the cornea centre near a shared start c_ref, to
     second order, per light, in world axes: J(c) = J0 + Σ_k H_k d_k + Σ_{k<=l} T_kl q_kl
-    with d = c - c_ref, q = (d_k²/2 for k = l, d_k d_l for k < l). At the centres a shared
+    with d = c - c_ref, q = (d_k²/2 for k = l, d_k d_l for k < l: xy, yz, xz). At the centres a shared
     step reaches (1-2 mm from c_ref on paper_sim) it is within ~1e-4 of the exact one
     (first order: ~3e-3), so a Gauss-Newton step with it and exact residuals lands near
     enough to the exact step's point for the exact step that follows to be the last."""
 
     center_ref: np.ndarray  # (3,)
-    J0: np.ndarray  # (2n * 3,): u rows of all lights, then v rows; zero for unusable lights
-    D: np.ndarray  # (9, 2n * 3): H_k, then T_kl, laid out for (B, 9) @ D
+    D: np.ndarray  # (10, 3 * 2n): J0, H_k, T_kl, laid out for (B, 10) @ D; each row holds
+    #                d u / d c_j of all lights, then d v / d c_j, for j = x, y, z
 
     def sums(self, problem: FitProblem, center, glints, mask):
         """Exact cost, model JᵀJ and Jᵀr (world axes) at centres (B, 3); exact sums for the
         samples the fast path does not handle."""
         B, n = mask.shape
-        r, _, fast = _centre_fit_rows(problem.camera, center, problem.cornea_radius_m,
+        G, _, fast = _centre_fit_rows(problem.camera, center, problem.cornea_radius_m,
                                       problem.lights_world_m, glints, mask, rows=False)
         d = center - self.center_ref
-        feats = np.concatenate([d, 0.5 * d * d, d[:, [0, 0, 1]] * d[:, [1, 2, 2]]], axis=1)
-        J = feats @ self.D
-        J += self.J0
-        J *= np.repeat(np.tile(mask, 2), 3, axis=1)
-        J = J.reshape(B, 2 * n, 3)
-        Jt = np.swapaxes(J, 1, 2)
-        cost, JtJ, Jtr = np.einsum("bi,bi->b", r, r), Jt @ J, (Jt @ r[..., None])[..., 0]
-        fast &= np.isfinite(cost)
+        q = np.empty((B, 10))
+        q[:, 0] = 1.0
+        q[:, 1:4] = d
+        np.multiply(d, 0.5 * d, out=q[:, 4:7])
+        np.multiply(d[:, :2], d[:, 1:], out=q[:, 7:9])  # d_x d_y, d_y d_z
+        np.multiply(d[:, 0], d[:, 2], out=q[:, 9])
+        # The model rows beside the residuals (row 3): one product per sample sums them all.
+        J = np.matmul(q, self.D, out=G[:, :3].reshape(B, 6 * n))
+        J *= np.tile(mask.astype(np.float64), 6)
+        S = G @ np.swapaxes(G, 1, 2)
+        cost, JtJ, Jtr = S[:, 3, 3].copy(), S[:, :3, :3].copy(), S[:, :3, 3].copy()
+        fast &= np.isfinite(S).all(axis=(1, 2))
         if not fast.all():
             s = ~fast
             cost[s], JtJ[s], Jtr[s] = _general_sums(problem.camera, center[s], problem.cornea_radius_m,
@@ -233,19 +237,19 @@ def start_model(problem: FitProblem, center_ref) -> StartModel:
             problem._start_cache.clear()
         n = problem.lights_world_m.shape[0]
         E = np.eye(3)
-        pairs = [(0, 1), (0, 2), (1, 2)]
+        pairs = [(0, 1), (1, 2), (0, 2)]
         offsets = [np.zeros(3)] + [s * h * E[k] for h in (_START_H1, _START_H2) for s in (1, -1) for k in range(3)]
         offsets += [_START_H2 * (sk * E[k] + sl * E[l]) for k, l in pairs for sk in (1, -1) for sl in (1, -1)]
         _, _, d_c, _, _ = glint_jacobians(problem.camera, center_ref + np.array(offsets), problem.cornea_radius_m,
                                           problem.lights_world_m, radius_and_lights=False)
-        J = np.swapaxes(d_c, 1, 2).reshape(len(offsets), -1)  # u rows of all lights, then v rows
+        J = d_c.transpose(0, 3, 2, 1).reshape(len(offsets), -1)  # (j, u or v, light)
         J0, p1, m1, p2, m2, x = J[0], J[1:4], J[4:7], J[7:10], J[10:13], J[13:].reshape(3, 4, -1)
         h1, h2 = _START_H1, _START_H2
-        D = np.concatenate([(p1 - m1) / (2 * h1), (p2 - 2 * J0 + m2) / h2 ** 2,
+        D = np.concatenate([J0[None], (p1 - m1) / (2 * h1), (p2 - 2 * J0 + m2) / h2 ** 2,
                             (x[:, 0] - x[:, 1] - x[:, 2] + x[:, 3]) / (4 * h2 ** 2)])
-        usable = np.isfinite(J).all(axis=0).reshape(2, n, 3).all(axis=(0, 2))
-        keep = np.tile(np.repeat(usable, 3), 2)
-        problem._start_cache[key] = StartModel(center_ref.copy(), np.where(keep, J0, 0.0), np.where(keep, D, 0.0))
+        usable = np.isfinite(J).all(axis=0).reshape(6, n).all(axis=0)
+        keep = np.tile(usable, 6)
+        problem._start_cache[key] = StartModel(center_ref.copy(), np.where(keep, D, 0.0))
     return problem._start_cache[key]
 
 

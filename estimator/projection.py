@@ -791,7 +791,7 @@ def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask
             np.subtract(proj, tmp, out=res)
             res *= fm
         if not rows:
-            return G[:, 3].reshape(B, 2 * n), None, fast
+            return G.reshape(B, 4, 2 * n), None, fast
         np.multiply(H[:, 0], xz, out=H[:, 1])
         np.multiply(H[:, 0], yz, out=H[:, 2])
         # Distances to camera and light over r, incidence angle and the terms of dP/dc of

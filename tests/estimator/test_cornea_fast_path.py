@@ -118,8 +118,8 @@ def test_start_model_jacobian_near_the_start(setup, problem):
     C = _centres(setup, np.random.default_rng(6), 30)
     d = C - ref
     assert np.linalg.norm(d, axis=1).max() > 1.5e-3
-    feats = np.concatenate([d, 0.5 * d * d, d[:, [0, 0, 1]] * d[:, [1, 2, 2]]], axis=1)
-    J = (feats @ model.D + model.J0).reshape(30, 2, 40, 3)
+    q = np.column_stack([np.ones(30), d, 0.5 * d * d, d[:, 0] * d[:, 1], d[:, 1] * d[:, 2], d[:, 0] * d[:, 2]])
+    J = np.moveaxis((q @ model.D).reshape(30, 3, 2, 40), 1, 3)
     _, _, exact, _, _ = glint_jacobians(setup.camera, C, problem.cornea_radius_m, setup.lights_world_m)
     exact = np.swapaxes(exact, 1, 2)
     assert np.abs(J - exact).max() < 1e-3 * np.abs(exact).max()
