@@ -116,7 +116,8 @@ def _prepare(glints_px, mask, n_lights, p):
         raise ValueError(f"glints_px must have shape (B, {n_lights}, 2), got {np.shape(glints_px)}")
     finite = np.isfinite(glints[..., 0]) & np.isfinite(glints[..., 1])
     m = finite if mask is None else np.asarray(mask, dtype=bool).reshape(glints.shape[:2]) & finite
-    glints = np.where(m[..., None], glints, 0.0)
+    if not m.all():
+        glints = np.where(m[..., None], glints, 0.0)
     enough = 2 * m.sum(axis=1) >= p
     return glints, m, enough
 

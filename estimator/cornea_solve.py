@@ -276,18 +276,48 @@ def shared_first_step(model, problem: FitProblem, glints, mask, x_ref, enough):
     # Σ over the seen lights as matrix products (einsum's own loops are several times slower).
     A = (mask.astype(float) @ JtJ_i.reshape(n, p * p)).reshape(B, p, p)
     d = glints - g0  # finite: the glints are prepared, g0 zero where unusable
-    d *= mask[..., None]
+    if not mask.all():
+        d *= mask[..., None]
     rhs = d.reshape(B, 2 * n) @ J0.reshape(2 * n, p)
     x = np.broadcast_to(x_ref, (glints.shape[0], x_ref.size)).copy()
     # Solvable: Hadamard's ratio det(A) / Π diag(A) of the positive semi-definite A (1 for an
     # orthogonal problem, 0 for a singular one) above 1e-12.
-    ok = enough & (np.linalg.det(A) > 1e-12 * np.prod(np.einsum("bii->bi", A), axis=1))
+    step, det = _solve_small(A, rhs) if p <= 3 else (None, np.linalg.det(A))
+    ok = enough & (det > 1e-12 * np.prod(np.einsum("bii->bi", A), axis=1))
     if ok.any():
-        x[ok] += np.linalg.solve(A[ok], rhs[ok][..., None])[..., 0]
+        x[ok] += step[ok] if p <= 3 else np.linalg.solve(A[ok], rhs[ok][..., None])[..., 0]
     bad = ~np.isfinite(x).all(axis=1)
     x[bad] = x_ref
     return x
 
+
+def _solve_small(A, b):
+    """x = A⁻¹ b and det A for (B, p, p) systems, p = 2 or 3, by cofactors: a few passes over
+    B instead of LAPACK's call per matrix. A singular system gives a non-finite x (the
+    callers' tests catch it)."""
+    p = A.shape[-1]
+    a = A.reshape(-1, p * p).T
+    if p == 2:
+        C = np.stack([a[3], -a[2], -a[1], a[0]])
+        det = a[0] * a[3] - a[1] * a[2]
+    elif p == 3:
+        C = np.empty((9, a.shape[1]))
+        C[0] = a[4] * a[8] - a[5] * a[7]
+        C[1] = a[5] * a[6] - a[3] * a[8]
+        C[2] = a[3] * a[7] - a[4] * a[6]
+        C[3] = a[2] * a[7] - a[1] * a[8]
+        C[4] = a[0] * a[8] - a[2] * a[6]
+        C[5] = a[1] * a[6] - a[0] * a[7]
+        C[6] = a[1] * a[5] - a[2] * a[4]
+        C[7] = a[2] * a[3] - a[0] * a[5]
+        C[8] = a[0] * a[4] - a[1] * a[3]
+        det = a[0] * C[0] + a[1] * C[1] + a[2] * C[2]
+    else:
+        raise ValueError(f"p must be 2 or 3, got {p}")
+    # A⁻¹ = Cᵀ / det (C the cofactors): x_i = Σ_j C[j, i] b_j / det.
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        x = np.einsum("jib,bj->bi", C.reshape(p, p, -1), b) / det[:, None]
+    return x, det
 
 def gather(glints, mask, lights):
     """Each sample's seen glints first, cut to the largest count k: glints (B, k, 2), mask
@@ -337,6 +367,9 @@ def _lm_block(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_
         glints, mask, lights = gather(glints, mask, problem.lights_world_m)
 
     def evaluate(x, idx, start=None):
+        if idx.size == B:  # every sample, in order: no copies
+            return normal_equations(model, problem, x, glints, mask, lights,
+                                    None if prior is None else prior.take(idx), start)
         return normal_equations(model, problem, x, glints[idx], mask[idx],
                                 None if lights is None else lights[idx],
                                 None if prior is None else prior.take(idx), start)
@@ -387,7 +420,7 @@ def _lm_block(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_
             A = A * free[:, :, None] * free[:, None, :] + held[:, :, None] * eye
             rhs = g * free
         with np.errstate(invalid="ignore", over="ignore"):
-            step = -np.linalg.solve(A, rhs[..., None])[..., 0]
+            step = -(_solve_small(A, rhs)[0] if p <= 3 else np.linalg.solve(A, rhs[..., None])[..., 0])
         x_new = np.clip(xi + step, lo, hi) if bounded else xi + step
         step = x_new - xi
         # A step the model cannot evaluate (a singular system's non-finite step, a radius

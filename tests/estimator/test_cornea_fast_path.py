@@ -176,3 +176,17 @@ def _start(problem, g, v, x0, model):
     else:
         x = solve.shared_first_step("center", problem, glints, mask, x0, enough)
     return glints, mask, x, enough, np.full(p, -np.inf), np.full(p, np.inf)
+
+
+@pytest.mark.parametrize("p", [2, 3])
+def test_small_systems_solved_by_cofactors(p):
+    rng = np.random.default_rng(p)
+    J = rng.normal(size=(20, 80, p))
+    A, b = np.swapaxes(J, 1, 2) @ J, rng.normal(size=(20, p))
+    A[7] = 0.0  # singular: a non-finite solution, no exception
+    x, det = solve._solve_small(A, b)
+    ok = np.arange(20) != 7
+    expected = np.linalg.solve(A[ok], b[ok][..., None])[..., 0]
+    assert np.allclose(x[ok], expected, rtol=1e-12, atol=0)
+    assert np.allclose(det[ok], np.linalg.det(A[ok]), rtol=1e-12, atol=0)
+    assert det[7] == 0 and not np.isfinite(x[7]).any()
