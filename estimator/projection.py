@@ -600,8 +600,9 @@ def _jacobian_terms(camera: Camera, center, radius, lights, axis=None, cap_cos_m
 #: The fast centre-fit path's root has settled when its last Newton step on τ = tan(ψ/2) is
 #: below this: the :data:`_STEP_STOP_RAD` of the general path, as dψ = 2 dτ / (1 + τ²).
 _TAU_STOP = 0.5 * _STEP_STOP_RAD
-#: Largest block (samples x lights) whose work arrays are kept between calls.
-_SCRATCH_PAIRS = 16384
+#: Largest block (samples x lights) whose work arrays are kept between calls: the LM's
+#: largest block of 40 lights (1.5 x cornea_solve._BLOCK samples), ~7 MB per thread.
+_SCRATCH_PAIRS = 30000
 
 
 class _Scratch(threading.local):
