@@ -438,7 +438,8 @@ def _lm_block(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_
                 continue
         # A Gauss-Newton step this small leaves an error far below the noise (see _GN_STOP):
         # take it and stop without paying for another Jacobian.
-        tiny = (lam[idx] <= 1e-3) & ~approx[idx] & (np.abs(step) <= gn_stop * np.maximum(1.0, np.abs(xi))).all(axis=1)
+        tiny = (lam[idx] <= 1e-3) & ~approx[idx] \
+            & (np.abs(step) <= gn_stop * np.maximum(1.0, np.abs(xi))).all(axis=1)
         if tiny.any():
             t_idx = idx[tiny]
             s = step[tiny]

@@ -662,6 +662,9 @@ def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask
     glints : (B, n, 2) float
         Observed glints (px); only those in ``mask`` count.
     mask : (B, n) bool
+    rows : bool
+        False: the residuals only (G's rows 0-2 are left as they were, N is None), for the
+        first step's model Jacobian (:class:`estimator.cornea_solve.StartModel`).
 
     Returns
     -------
@@ -782,7 +785,8 @@ def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask
         G = get("G", (B, 4, 2, n))
         H = get("H", (B, 3, n))
         fm, tmp = w[11], w[10]
-        for row, (proj, f_px, c_px) in enumerate(((xz, camera.fx_px, camera.cx_px), (yz, camera.fy_px, camera.cy_px))):
+        pinhole = ((xz, camera.fx_px, camera.cx_px), (yz, camera.fy_px, camera.cy_px))
+        for row, (proj, f_px, c_px) in enumerate(pinhole):
             np.multiply(mask, f_px, out=fm)
             if row == 0:
                 np.multiply(fm, iz, out=H[:, 0])
