@@ -196,14 +196,7 @@ def fit_cornea(problem: FitProblem, glints_px, mask=None, x0=None, *, model: str
         enough = enough | prior.present
     # The shared step linearises about one point for all samples; not for the 10-unknown
     # model, whose flat valley makes that linearisation meaningless far from the minimum.
-    start_ref = None
     if solver == "lm" and shared and B > 1 and prior is None and model != "full":
-        if model in ("center", "orbit"):
-            # The first step may take a model Jacobian about the start (StartModel: 0.7 ms to
-            # build, ~3 us per sample saved): worth it on a problem fitted again from there.
-            c_ref = x0[0] if model == "center" else _solve.unpack("orbit", problem, x0[:1])[0][0]
-            if ("center", c_ref.tobytes()) in problem._start_cache:
-                start_ref = c_ref
         if model == "orbit":
             # The Fick angles bend the orbit: a shared step in angles from primary gaze lands
             # 0.2 rad off at 17 deg of gaze, the centre's nearly linear map 3-7 mrad (measured
@@ -215,8 +208,7 @@ def fit_cornea(problem: FitProblem, glints_px, mask=None, x0=None, *, model: str
             x0 = _solve.shared_first_step(model, problem, glints, mask, x0[0], enough)
         x0 = np.clip(x0, lo, hi)
     if solver == "lm":
-        x, rms, iters, converged = _solve.lm(model, problem, glints, mask, x0, enough, lo, hi, max_iter, prior,
-                                             start_ref)
+        x, rms, iters, converged = _solve.lm(model, problem, glints, mask, x0, enough, lo, hi, max_iter, prior)
     else:
         x, rms, iters, converged = _solve.trf(model, problem, glints, mask, x0, enough, lo, hi, max_iter, prior)
     reason = np.full(B, OK, dtype=object)

@@ -106,8 +106,7 @@ def orbit_derivative(problem: FitProblem, x):
                      np.stack([-sp * sy, cp, sp * cy], -1)], -1) * problem.orbit_radius_m
 
 
-def normal_equations(model, problem: FitProblem, x, glints, mask, lights=None, prior: Prior | None = None,
-                     start: StartModel | None = None):
+def normal_equations(model, problem: FitProblem, x, glints, mask, lights=None, prior: Prior | None = None):
     """Cost Σ r² (B,), JᵀJ (B, p, p) and Jᵀr (B, p) of the masked glint residuals at x, plus the
     prior's terms: all that LM needs, without keeping the (B, 2n, p) Jacobian.
 
@@ -115,11 +114,7 @@ def normal_equations(model, problem: FitProblem, x, glints, mask, lights=None, p
     sample's seen glints first). The centre's rows come from
     :func:`estimator.projection._centre_fit_rows` in a basis per sample, are summed by one
     matrix product per sample and turned to world axes once (J_world = J_b N); the orbit's
-    follow by the chain rule (Dᵀ JᵀJ D).
-
-    With ``start`` (centre and orbit models, the problem's lights) the residuals and cost are
-    exact but the Jacobian is the start's model (:class:`StartModel`): good enough for the
-    first step from a shared start, never for the last one (see :func:`_lm_block`)."""
+    follow by the chain rule (Dᵀ JᵀJ D)."""
     if model == "full":
         r, J = residuals_and_jacobian(model, problem, x, glints, mask)
         Jt = J.transpose(0, 2, 1)
@@ -129,8 +124,6 @@ def normal_equations(model, problem: FitProblem, x, glints, mask, lights=None, p
         L = problem.lights_world_m if lights is None else lights
         if model == "center_radius":
             cost, JtJ, Jtr = _general_sums(problem.camera, center, radius, L, glints, mask, True)
-        elif start is not None:
-            cost, JtJ, Jtr = start.sums(problem, center, glints, mask)
         else:
             # One product per sample sums the fast path's rows; the few samples it does not
             # handle take the general path. (A product of an array with itself sums every
@@ -183,74 +176,6 @@ def _general_sums(camera, center, radius, lights, glints, mask, with_radius: boo
     M = np.eye(q)
     M[:3, :3] = camera.rotation
     return cost, M.T @ JtJ @ M, (Jtr[:, None, :] @ M)[:, 0]
-
-
-class StartModel(NamedTuple):
-    """The glints' Jacobian with respect to the cornea centre near a shared start c_ref, to
-    second order, per light, in world axes: J(c) = J0 + Σ_k H_k d_k + Σ_{k<=l} T_kl q_kl
-    with d = c - c_ref, q = (d_k²/2 for k = l, d_k d_l for k < l: xy, yz, xz). At the centres a shared
-    step reaches (1-2 mm from c_ref on paper_sim) it is within ~1e-4 of the exact one
-    (first order: ~3e-3), so a Gauss-Newton step with it and exact residuals lands near
-    enough to the exact step's point for the exact step that follows to be the last."""
-
-    center_ref: np.ndarray  # (3,)
-    D: np.ndarray  # (10, 3 * 2n): J0, H_k, T_kl, laid out for (B, 10) @ D; each row holds
-    #                d u / d c_j of all lights, then d v / d c_j, for j = x, y, z
-
-    def sums(self, problem: FitProblem, center, glints, mask):
-        """Exact cost, model JᵀJ and Jᵀr (world axes) at centres (B, 3); exact sums for the
-        samples the fast path does not handle."""
-        B, n = mask.shape
-        G, _, fast = _centre_fit_rows(problem.camera, center, problem.cornea_radius_m,
-                                      problem.lights_world_m, glints, mask, rows=False)
-        d = center - self.center_ref
-        q = np.empty((B, 10))
-        q[:, 0] = 1.0
-        q[:, 1:4] = d
-        np.multiply(d, 0.5 * d, out=q[:, 4:7])
-        np.multiply(d[:, :2], d[:, 1:], out=q[:, 7:9])  # d_x d_y, d_y d_z
-        np.multiply(d[:, 0], d[:, 2], out=q[:, 9])
-        # The model rows beside the residuals (row 3): one product per sample sums them all.
-        J = np.matmul(q, self.D, out=G[:, :3].reshape(B, 6 * n))
-        J *= np.tile(mask.astype(np.float64), 6)
-        S = G @ np.swapaxes(G, 1, 2)
-        cost, JtJ, Jtr = S[:, 3, 3].copy(), S[:, :3, :3].copy(), S[:, :3, 3].copy()
-        fast &= np.isfinite(S).all(axis=(1, 2))
-        if not fast.all():
-            s = ~fast
-            cost[s], JtJ[s], Jtr[s] = _general_sums(problem.camera, center[s], problem.cornea_radius_m,
-                                                    problem.lights_world_m, glints[s], mask[s], False)
-        return cost, JtJ, Jtr
-
-
-#: Central-difference steps (m) for StartModel's first and second derivatives: truncation
-#: ~(h / 30 mm)², rounding ~1e-15 |J| / h (1e-11 and 1e-7 relative of terms that are
-#: themselves ~1e-2 and ~1e-4 of J at 1-2 mm).
-_START_H1, _START_H2 = 1e-5, 1e-4
-
-
-def start_model(problem: FitProblem, center_ref) -> StartModel:
-    """The :class:`StartModel` at ``center_ref`` (3,), cached in the problem."""
-    key = ("model", center_ref.tobytes())
-    if key not in problem._start_cache:
-        if len(problem._start_cache) >= 8:
-            problem._start_cache.clear()
-        n = problem.lights_world_m.shape[0]
-        E = np.eye(3)
-        pairs = [(0, 1), (1, 2), (0, 2)]
-        offsets = [np.zeros(3)] + [s * h * E[k] for h in (_START_H1, _START_H2) for s in (1, -1) for k in range(3)]
-        offsets += [_START_H2 * (sk * E[k] + sl * E[l]) for k, l in pairs for sk in (1, -1) for sl in (1, -1)]
-        _, _, d_c, _, _ = glint_jacobians(problem.camera, center_ref + np.array(offsets), problem.cornea_radius_m,
-                                          problem.lights_world_m, radius_and_lights=False)
-        J = d_c.transpose(0, 3, 2, 1).reshape(len(offsets), -1)  # (j, u or v, light)
-        J0, p1, m1, p2, m2, x = J[0], J[1:4], J[4:7], J[7:10], J[10:13], J[13:].reshape(3, 4, -1)
-        h1, h2 = _START_H1, _START_H2
-        D = np.concatenate([J0[None], (p1 - m1) / (2 * h1), (p2 - 2 * J0 + m2) / h2 ** 2,
-                            (x[:, 0] - x[:, 1] - x[:, 2] + x[:, 3]) / (4 * h2 ** 2)])
-        usable = np.isfinite(J).all(axis=0).reshape(6, n).all(axis=0)
-        keep = np.tile(usable, 6)
-        problem._start_cache[key] = StartModel(center_ref.copy(), np.where(keep, D, 0.0))
-    return problem._start_cache[key]
 
 
 def shared_first_step(model, problem: FitProblem, glints, mask, x_ref, enough):
@@ -336,28 +261,24 @@ def gather(glints, mask, lights):
 _BLOCK = 500
 
 
-def lm(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_iter, prior: Prior | None = None,
-       start_ref=None):
+def lm(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_iter, prior: Prior | None = None):
     """Batched Levenberg-Marquardt (Marquardt's diagonal scaling), one Jacobian per iteration,
     over blocks of :data:`_BLOCK` samples (the samples are independent).
 
     Each iteration evaluates the normal equations at the trial points of the samples still
     running; a trial that lowers the cost is kept (and its normal equations are the next
-    ones), one that does not raises that sample's damping and keeps the old point. With
-    ``start_ref`` (3,), the centre the starts were stepped from by :func:`shared_first_step`,
-    the first normal equations take the :class:`StartModel` there. Returns x (B, p), rms (B,)
-    of the glint residuals, iterations (B,) and converged (B,)."""
+    ones), one that does not raises that sample's damping and keeps the old point. Returns
+    x (B, p), rms (B,) of the glint residuals, iterations (B,) and converged (B,)."""
     B = x0.shape[0]
     if B <= 1.5 * _BLOCK:
-        return _lm_block(model, problem, glints, mask, x0, enough, lo, hi, max_iter, prior, start_ref)
+        return _lm_block(model, problem, glints, mask, x0, enough, lo, hi, max_iter, prior)
     parts = [_lm_block(model, problem, glints[s], mask[s], x0[s], enough[s], lo, hi, max_iter,
-                       None if prior is None else prior.take(s), start_ref)
+                       None if prior is None else prior.take(s))
              for s in (slice(i, i + _BLOCK) for i in range(0, B, _BLOCK))]
     return tuple(np.concatenate(a) for a in zip(*parts))
 
 
-def _lm_block(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_iter, prior: Prior | None,
-              start_ref=None):
+def _lm_block(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_iter, prior: Prior | None):
     """:func:`lm` on one block."""
     B, p = x0.shape
     n_seen = mask.sum(axis=1)
@@ -367,13 +288,13 @@ def _lm_block(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_
     if model != "full" and 4 * n_seen.max(initial=0) < 3 * mask.shape[1]:
         glints, mask, lights = gather(glints, mask, problem.lights_world_m)
 
-    def evaluate(x, idx, start=None):
+    def evaluate(x, idx):
         if idx.size == B:  # every sample, in order: no copies
             return normal_equations(model, problem, x, glints, mask, lights,
-                                    None if prior is None else prior.take(idx), start)
+                                    None if prior is None else prior.take(idx))
         return normal_equations(model, problem, x, glints[idx], mask[idx],
                                 None if lights is None else lights[idx],
-                                None if prior is None else prior.take(idx), start)
+                                None if prior is None else prior.take(idx))
 
     # The stopping step in each unknown's unit: metres of cornea-centre motion for the orbit's
     # angles (r_co per radian).
@@ -393,16 +314,8 @@ def _lm_block(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_
     eye = np.eye(p)
     on_diag = slice(None, None, p + 1)
     idx = np.flatnonzero(active)
-    # From a shared start the first normal equations may take the start's model Jacobian
-    # (exact residuals): its step is never the last one, and a sample whose model step is
-    # rejected gets exact normal equations at its point instead of more damping.
-    approx = np.zeros(B, dtype=bool)
-    start = None
-    if start_ref is not None and lights is None and prior is None and model in ("center", "orbit"):
-        start = start_model(problem, start_ref)
     if idx.size:
-        cost[idx], JtJ[idx], Jtr[idx] = evaluate(x[idx], idx, start)
-        approx[idx] = start is not None
+        cost[idx], JtJ[idx], Jtr[idx] = evaluate(x[idx], idx)
     for _ in range(max_iter):
         idx = np.flatnonzero(active & ~converged)
         if idx.size == 0:
@@ -438,8 +351,7 @@ def _lm_block(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_
                 continue
         # A Gauss-Newton step this small leaves an error far below the noise (see _GN_STOP):
         # take it and stop without paying for another Jacobian.
-        tiny = (lam[idx] <= 1e-3) & ~approx[idx] \
-            & (np.abs(step) <= gn_stop * np.maximum(1.0, np.abs(xi))).all(axis=1)
+        tiny = (lam[idx] <= 1e-3) & (np.abs(step) <= gn_stop * np.maximum(1.0, np.abs(xi))).all(axis=1)
         if tiny.any():
             t_idx = idx[tiny]
             s = step[tiny]
@@ -462,15 +374,7 @@ def _lm_block(model, problem: FitProblem, glints, mask, x0, enough, lo, hi, max_
         flat = np.abs(cost[idx] - cost_new) <= _FTOL * np.maximum(cost[idx], 1e-30)
         x[acc], cost[acc], JtJ[acc], Jtr[acc] = x_new[better], cost_new[better], JtJ_new[better], Jtr_new[better]
         lam[acc] = np.maximum(lam[acc] / 10, 1e-12)
-        approx[acc] = False
         rej = idx[~better]
-        redo = rej[approx[rej]]
-        if redo.size:
-            # A step from the start's model that does not lower the cost: exact normal
-            # equations at the old point instead of more damping.
-            cost[redo], JtJ[redo], Jtr[redo] = evaluate(x[redo], redo)
-            approx[redo] = False
-            rej = rej[~np.isin(rej, redo)]
         lam[rej] *= 10
         # Converged: an accepted step that changed nothing, or a damping so large that no
         # step lowers the cost any more (a minimum to machine precision).

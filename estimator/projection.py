@@ -633,7 +633,7 @@ class _Scratch(threading.local):
 _scratch = _Scratch()
 
 
-def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask, rows: bool = True):
+def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask):
     """Residuals and rows of d glint / d centre of a cornea-centre fit, packed so that one
     matrix product per sample gives its normal equations.
 
@@ -662,9 +662,6 @@ def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask
     glints : (B, n, 2) float
         Observed glints (px); only those in ``mask`` count.
     mask : (B, n) bool
-    rows : bool
-        False: the residuals only (G's rows 0-2 are left as they were, N is None), for the
-        first step's model Jacobian (:class:`estimator.cornea_solve.StartModel`).
 
     Returns
     -------
@@ -795,8 +792,6 @@ def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask
             res = G[:, 3, row]
             np.subtract(proj, tmp, out=res)
             res *= fm
-        if not rows:
-            return G.reshape(B, 4, 2 * n), None, fast
         np.multiply(H[:, 0], xz, out=H[:, 1])
         np.multiply(H[:, 0], yz, out=H[:, 2])
         # Distances to camera and light over r, incidence angle and the terms of dP/dc of

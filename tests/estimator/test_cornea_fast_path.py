@@ -1,6 +1,6 @@
 """The fit path's packed rows (estimator.projection._centre_fit_rows) against the general
-Jacobian terms: same glints, same normal equations, same fallbacks, reusable work arrays;
-and the shared start's model Jacobian (estimator.cornea_solve.StartModel) for first steps."""
+Jacobian terms: same glints, same normal equations, same fallbacks, reusable work arrays; and
+the small systems' closed-form solves."""
 
 from concurrent.futures import ThreadPoolExecutor
 
@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from estimator import cornea_solve as solve
-from estimator.cornea import FitProblem, fit_cornea
 from estimator.projection import _centre_fit_rows, project_glints
 
 #: Relative agreement of the two paths' normal equations: both are exact to rounding, summed
@@ -108,74 +107,6 @@ def test_work_arrays_are_reused_safely(problem, observed):
     with ThreadPoolExecutor(max_workers=2) as pool:
         for k, got in pool.map(run, range(40)):
             _assert_same(got, expected[k % len(shapes)])
-
-
-def test_start_model_jacobian_near_the_start(setup, problem):
-    # Second order in the centre's offset: within 1e-3 of the exact Jacobian 2 mm away.
-    from estimator.projection import glint_jacobians
-    ref = setup.eye.cornea_center(0.0, 0.0)
-    model = solve.start_model(problem, ref)
-    C = _centres(setup, np.random.default_rng(6), 30)
-    d = C - ref
-    assert np.linalg.norm(d, axis=1).max() > 1.5e-3
-    q = np.column_stack([np.ones(30), d, 0.5 * d * d, d[:, 0] * d[:, 1], d[:, 1] * d[:, 2], d[:, 0] * d[:, 2]])
-    J = np.moveaxis((q @ model.D).reshape(30, 3, 2, 40), 1, 3)
-    _, _, exact, _, _ = glint_jacobians(setup.camera, C, problem.cornea_radius_m, setup.lights_world_m)
-    exact = np.swapaxes(exact, 1, 2)
-    assert np.abs(J - exact).max() < 1e-3 * np.abs(exact).max()
-
-
-@pytest.mark.parametrize("model", ["center", "orbit"])
-def test_first_step_from_the_start_model_reaches_the_same_minimum(setup, problem, observed, model):
-    # The start model (taken from a problem's second fit from the same start on) only shapes
-    # the first step: the same minimum as exact normal equations throughout, to the LM's own
-    # stopping tolerance (a last step below 1e-7 m leaves <= 1.2e-3 of it with noisy glints,
-    # see cornea_solve._GN_STOP: 2e-10 m for both fits).
-    _, g, v = observed
-    fresh = FitProblem(problem.camera, problem.lights_world_m, problem.cornea_radius_m,
-                       problem.eye_center_m, problem.orbit_radius_m)
-    x0 = np.zeros(2) if model == "orbit" else setup.eye.cornea_center(0.0, 0.0)
-    first = fit_cornea(fresh, g, v, x0, model=model)
-    assert not any(key[0] == "model" for key in fresh._start_cache)  # exact first step
-    again = fit_cornea(fresh, g, v, x0, model=model)
-    assert any(key[0] == "model" for key in fresh._start_cache)
-    plain = solve.lm(model, problem, *_start(problem, g, v, x0, model), 50)
-    assert first.ok.all() and again.ok.all() and plain[3].all()
-    scale = problem.orbit_radius_m if model == "orbit" else 1.0
-    for fit in (first, again):
-        x = fit.angles_rad if model == "orbit" else fit.center_m
-        assert np.abs(x - plain[0]).max() * scale < 2e-10
-
-
-def test_a_rejected_model_step_gets_exact_normal_equations(setup, problem, observed, monkeypatch):
-    # A start model 30x off in its first derivatives makes bad first steps: each sample is
-    # re-evaluated exactly at its start and still converges to the plain LM's minimum.
-    _, g, v = observed
-    ref = setup.eye.cornea_center(0.0, 0.0)
-    good = solve.start_model(problem, ref)
-    bad = good._replace(D=np.concatenate([30 * good.D[:3], good.D[3:]]))
-    args = _start(problem, g, v, ref, "center")
-    plain = solve.lm("center", problem, *args, 50)
-    monkeypatch.setattr(solve, "start_model", lambda problem, c: bad)
-    x, _, iters, converged = solve.lm("center", problem, *args, 50, None, ref)
-    assert converged.all()
-    assert np.abs(x - plain[0]).max() < 2e-10
-    assert (iters >= plain[2]).all() and (iters > plain[2]).any()
-
-
-def _start(problem, g, v, x0, model):
-    """(glints, mask, x0, enough, lo, hi) after fit_cornea's preparation and shared step."""
-    from estimator.cornea import _prepare
-    from estimator.eye import fick_angles
-    p = 2 if model == "orbit" else 3
-    glints, mask, enough = _prepare(g, v, 40, p)
-    if model == "orbit":
-        c_ref = solve.unpack("orbit", problem, x0[None])[0][0]
-        c = solve.shared_first_step("center", problem, glints, mask, c_ref, enough)
-        x = np.column_stack(fick_angles(c - problem.eye_center_m))
-    else:
-        x = solve.shared_first_step("center", problem, glints, mask, x0, enough)
-    return glints, mask, x, enough, np.full(p, -np.inf), np.full(p, np.inf)
 
 
 @pytest.mark.parametrize("p", [2, 3])
