@@ -15,7 +15,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from .eye import gaze_direction
-from .projection import _centre_fit_rows, _jacobian_terms, _radius_rows, glint_jacobians, project_glints
+from .fit_rows import _centre_fit_rows
+from .projection import _jacobian_terms, _radius_rows, glint_jacobians, project_glints
 
 if TYPE_CHECKING:
     from .cornea import FitProblem
@@ -112,7 +113,7 @@ def normal_equations(model, problem: FitProblem, x, glints, mask, lights=None, p
 
     ``lights`` (B, k, 3), if given, replaces the problem's lights (gathered glints: each
     sample's seen glints first). The centre's rows come from
-    :func:`estimator.projection._centre_fit_rows` in a basis per sample, are summed by one
+    :func:`estimator.fit_rows._centre_fit_rows` in a basis per sample, are summed by one
     matrix product per sample and turned to world axes once (J_world = J_b N); the orbit's
     follow by the chain rule (Dᵀ JᵀJ D)."""
     if model == "full":
@@ -255,7 +256,7 @@ def gather(glints, mask, lights):
 
 
 #: Samples per block of the batched LM: a block's (block, n) work arrays stay in the CPU cache
-#: and are reused between calls (projection._Scratch). Measured on paper_sim, 40 lights,
+#: and are reused between calls (fit_rows._Scratch). Measured on paper_sim, 40 lights,
 #: batches of 1,000 (median of 30 interleaved rounds): blocks of 500 run 12 % (centre) and
 #: 18 % (orbit) faster than blocks of 200, 400 in between; one block of 1,000 no faster.
 _BLOCK = 500
