@@ -550,13 +550,18 @@ def saccade(setup):
     return frames
 
 
-def test_window_finds_what_the_whole_frame_finds(setup, saccade):
+@pytest.mark.parametrize("dtype", [np.uint16, np.uint8, np.float32])
+def test_window_finds_what_the_whole_frame_finds(setup, saccade, dtype):
     """Searched in a window around the glints, every frame gives the whole frame's detections
     (the same model): the window follows the turning eye, and the jump that leaves it is
-    searched again whole in the same frame."""
+    searched again whole in the same frame. 10-bit, 8-bit and float output alike."""
     window, whole = GlintDetector(setup), GlintDetector(setup, track_roi=False)
     windows = []
     for f, frame, g in saccade:
+        if dtype is np.uint8:
+            frame = (frame >> 2).astype(np.uint8)
+        elif dtype is np.float32:
+            frame = frame.astype(np.float32)
         det = window(frame, f)
         assert_same_detections(det, whole(frame, f))
         assert len(det) == len(g)
