@@ -46,10 +46,14 @@ from estimator.folders import (FRAMES_DIR, _atomic_write, calibrate_from_folder,
                                save_calibration, timing_document, track_folder)
 from estimator.tracker import MAX_RESIDUAL_PX, RESIDUAL_TOO_LARGE, BandPrior
 
-#: A detection is the glint of a light when it lies within this distance of the light's
-#: ground-truth glint (px at the rendered resolution): rendered centroids sit within ~0.3 px
-#: of it, the closest neighbouring glints of paper_sim are 5.7 px apart (2.9 px at half size).
-IDENTITY_RADIUS_PX = 1.5
+#: A detection is the glint of the light it was matched to when that light's ground-truth glint
+#: is the labelled glint nearest to it and lies within this distance (px at full size, 640 x
+#: 480; halved at half size): identity, not centroid accuracy. The closest neighbouring glints
+#: of paper_sim are 5.7 px apart; rendered centroids sit within ~0.3 px of their glint on a
+#: conductor cornea, but a dielectric cornea at 16 spp renders each glint as a few clipped
+#: Monte Carlo pixels (a 2.5 % reflection sampled per camera ray; :mod:`scet_render.sensor`)
+#: whose centroid is up to ~2 px off (median 0.9 px, measured on the full validation).
+IDENTITY_RADIUS_PX = 3.0
 #: Calibration frames: share of the slack between exposure and readout span given to the pulse.
 CALIB_PULSE_SHARE = 0.5
 #: Calibration fixation per target (s); one frame is rendered in its middle.
@@ -107,8 +111,8 @@ class ValidationResult:
         pulses per frame -> that setting's RMS per-axis error (px): the e_f of its matching
         feature-level simulation (Gaussian).
     identity_rate : float
-        Share of identified detections whose light is right (within :data:`IDENTITY_RADIUS_PX`
-        of that light's ground-truth glint).
+        Share of identified detections whose light is right (that light's ground-truth glint
+        is the nearest to the detection, within :data:`IDENTITY_RADIUS_PX` at full size).
     n_identified : int
     calibration : Calibration
     errors_deg : dict
@@ -295,18 +299,22 @@ def _true_gaze_points(setup: Setup, labels) -> np.ndarray:
     return p
 
 
-def _identities(samples, labels_by_key):
+def _identities(samples, labels_by_key, radius_px: float):
     """(correct, total, residuals (k, 2)) of the identified glints of the estimated samples
-    against the labels."""
+    against the labels: right when the claimed light's labelled glint is the one nearest to
+    the detection and within ``radius_px``."""
     correct = total = 0
     resid = []
     for s in samples:
         lb = labels_by_key.get((s.frame_index, s.strobe_index))
-        if lb is None or not s.ok:
+        if lb is None or not s.ok or s.n_glints == 0:
             continue
-        gt = lb.glints_px[s.light_index]
+        labelled = np.asarray(lb.glints_px, dtype=np.float64)
+        gt = labelled[s.light_index]
         d = np.linalg.norm(s.glints_px - gt, axis=1)
-        good = np.isfinite(d) & (d <= IDENTITY_RADIUS_PX)
+        d_all = np.linalg.norm(s.glints_px[:, None] - labelled[None], axis=-1)
+        nearest = np.where(np.isfinite(d_all), d_all, np.inf).argmin(axis=1)
+        good = np.isfinite(d) & (d <= radius_px) & (nearest == s.light_index)
         correct += int(good.sum())
         total += s.n_glints
         resid.append((s.glints_px - gt)[good])
@@ -457,6 +465,7 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
     assisted_ids = (0, 0)
     resid_all = []
     timings["track"] = timings["simulate"] = 0.0
+    radius = IDENTITY_RADIUS_PX / cfg.scale
     for ppf, (sset, test_dir) in settings.items():
         labels = list(iter_labels(test_dir))
         by_key = {(lb.frame, lb.strobe): lb for lb in labels}
@@ -480,13 +489,14 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
             truth = _true_gaze_points(sset, keyed)
             est = np.array([[*s.screen_xy_m, sset.screen.z_m] for s in samples])
             err = angular_error_deg(est, truth, sset.eye.rotation_center_m)
-            c, n, _ = _identities(samples, by_key)
+            c, n, _ = _identities(samples, by_key, radius)
             if method == "polynomial":  # the same identities serve both methods
                 correct, total = correct + c, total + n
                 # e_f of the simulation, which covers the own-glint samples only.
                 resid_p.append(_identities([s for s in samples if not s.prior_assisted],
-                                           by_key)[2])
-                ca, na, _ = _identities([s for s in samples if s.prior_assisted], by_key)
+                                           by_key, radius)[2])
+                ca, na, _ = _identities([s for s in samples if s.prior_assisted], by_key,
+                                        radius)
                 assisted_ids = (assisted_ids[0] + ca, assisted_ids[1] + na)
             errors[("rendered", ppf, method)] = err
             assisted[(ppf, method)] = np.array([s.ok and s.prior_assisted for s in samples],
@@ -673,8 +683,8 @@ simulated rows cover own-glint samples only (one pose has no previous band to bo
 
 {prior_table_markdown(errors, assisted)}
 Identified glints: {total}, with the right light: {correct}
-({100 * correct / max(total, 1):.2f} %; right = within {IDENTITY_RADIUS_PX} px of that light's
-labelled glint). Of these, in prior-assisted samples: {assisted_ids[1]}, right
+({100 * correct / max(total, 1):.2f} %; right = that light's labelled glint is the one nearest
+to the detection, within {IDENTITY_RADIUS_PX / cfg.scale:g} px). Of these, in prior-assisted samples: {assisted_ids[1]}, right
 {assisted_ids[0]}. The feature noise e_f is measured on the own-glint samples.
 
 {diff}

@@ -100,6 +100,25 @@ def test_identities_match_the_labels(result):
         f"{100 * result.identity_rate:.2f} % of {result.n_identified} identities right")
 
 
+def test_an_identity_is_the_nearest_labelled_glint():
+    """Right: the claimed light's labelled glint is the nearest to the detection and within
+    the radius; a centroid far off its own glint but nearest to it is still the right light,
+    one nearer to another light's glint is not."""
+    from types import SimpleNamespace
+
+    from scet_render.validate import _identities
+
+    label = SimpleNamespace(glints_px=np.array([[100.0, 50.0], [106.0, 50.0], [np.nan, np.nan]]))
+    det = np.array([[102.0, 50.0],   # light 0, 2 px off, nearest to light 0: right
+                    [103.4, 50.0],   # claimed light 0, but light 1 is nearer: wrong
+                    [106.5, 50.0]])  # light 1, 0.5 px off: right
+    sample = SimpleNamespace(frame_index=0, strobe_index=3, ok=True, n_glints=3, glints_px=det,
+                             light_index=np.array([0, 0, 1]))
+    correct, total, resid = _identities([sample], {(0, 3): label}, 3.0)
+    assert (correct, total) == (2, 3) and np.allclose(resid, [[2.0, 0.0], [0.5, 0.0]])
+    assert _identities([sample], {(0, 3): label}, 1.5)[:2] == (1, 3)
+
+
 @pytest.mark.parametrize("method", ["polynomial", "geometric"])
 def test_rendered_accuracy_matches_the_feature_level_simulation(result, method):
     # Samples from their own glints: the simulation has no previous band to borrow a prior from.
