@@ -11,7 +11,9 @@ prototype). Per frame:
    sample's eye rotation as prior (cold search for the first sample and after a failure). The
    matcher predicts glints from the calibrated geometry (lighting pose, r_c, c_e, r_co).
 4. The cornea is fitted to the identified glints and mapped to the screen
-   (:func:`estimator.gaze.polynomial_gaze` or :func:`estimator.gaze.geometric_gaze`).
+   (:func:`estimator.gaze.polynomial_gaze` or :func:`estimator.gaze.geometric_gaze`). A band
+   whose identification puts the eye further from a recent previous sample than it can turn
+   in between is NaN (:data:`IMPLAUSIBLE_JUMP`): clutter matched to a chain of lights.
 5. Sparse bands (fewer than :data:`MIN_GLINTS` glints, or whose identification failed) borrow
    from the previous sample when it is recent (:class:`BandPrior`): its eye rotation, with a
    covariance grown by the motion model, is a Gaussian prior for identifying the few glints
@@ -58,6 +60,9 @@ SATURATED_FRAME = "saturated_frame"
 MISSING_FRAME = "missing_frame"
 INTERNAL_ERROR = "internal_error"
 RESIDUAL_TOO_LARGE = "residual_too_large"
+#: A band's own identification puts the eye further from the previous sample than it can turn
+#: in the time between them (:data:`JUMP_AGE_S`, :data:`JUMP_SLACK_DEG`).
+IMPLAUSIBLE_JUMP = "implausible_jump"
 #: Prefix of the reason of a sparse band whose prior-assisted estimate failed too (e.g.
 #: "prior_ambiguous", "prior_residual_too_large"): a prior was there, it did not suffice.
 PRIOR_PREFIX = "prior_"
@@ -76,6 +81,17 @@ MIN_GLINTS = 5
 #: identities fit to 0.18 px (median), 0.39 px at most over 289 samples; five clutter blobs in
 #: a band without glints, taken for glints, fitted to 1.4-1.7 px.
 MAX_RESIDUAL_PX = 1.0
+#: A band identified on its own is checked against the previous sample when that sample is at
+#: most this old (s): a little over one frame period, so the first band of a frame is checked
+#: against the last of the one before. Older samples do not gate (a wrong one would otherwise
+#: hold back the right ones for long).
+JUMP_AGE_S = 0.02
+#: Slack of that check beyond the turn the eye can make, v_max √2 Δt (v_max per axis, the
+#: :class:`BandPrior`'s): the two samples' estimation error. In the full validation, three
+#: 5-glint bands of clutter with no glint at all (top rows, dielectric renders) were matched
+#: to a chain 19-28 deg away from the previous sample 1 ms before; right samples differ from
+#: the previous one by well under a degree.
+JUMP_SLACK_DEG = 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -333,6 +349,8 @@ class Tracker:
             est = geometric_gaze(self.setup, self.calibration, glints,
                                  start=(0.0, 0.0) if self._start is None else self._start)
         reason = self._reason(est)
+        if reason == "ok" and self._implausible(time_s, match.angles_rad):
+            reason = IMPLAUSIBLE_JUMP
         if reason != "ok":
             return _failed(f, j, time_s, reason, g[used], lights)
         self._prior_angles = match.angles_rad
@@ -378,6 +396,18 @@ class Tracker:
         return GazeSample(f, j, time_s, est.screen_xy_m[0].copy(), est.cornea_center_m[0].copy(),
                           g[used], lights, float(est.rms_px[0]), "ok",
                           match.confidence[used].copy(), prior_assisted=True)
+
+    def _implausible(self, time_s: float, angles_rad) -> bool:
+        """Whether the eye rotation ``angles_rad`` is further from the previous sample's than
+        the eye turns in the time between them (see :data:`JUMP_AGE_S`)."""
+        if self._state is None or self.prior is None:
+            return False
+        t0, mean, _ = self._state
+        dt = time_s - t0
+        if not 0 <= dt <= JUMP_AGE_S:
+            return False
+        reach = math.radians(self.prior.eye_speed_max_deg_s * math.sqrt(2.0) * dt + JUMP_SLACK_DEG)
+        return bool(np.hypot(*(np.asarray(angles_rad) - mean)) > reach)
 
     def _glints(self, glints_px, lights) -> np.ndarray:
         out = np.full((1, self.n_lights, 2), np.nan)

@@ -85,6 +85,30 @@ def test_one_sample_per_visible_band_stamped_with_the_strobe_instant(setup, cali
         assert err_m.max() < 0.01
 
 
+def test_an_impossible_jump_between_bands_is_nan(setup, calibration):
+    """The eye at one target, then 20 deg away in the next frame (1 ms between the last band
+    of one and the first of the next; 600 deg/s per axis allows 2.8 deg with the slack): the
+    far frame's own identifications are NaN with IMPLAUSIBLE_JUMP while the previous sample
+    is under JUMP_AGE_S old, and accepted again once it is older."""
+    from estimator.tracker import IMPLAUSIBLE_JUMP, JUMP_AGE_S
+    rng = np.random.default_rng(4)
+    targets = setup.screen.grid(2, 1)
+    yaw, pitch = setup.eye.angles_toward(targets)
+    assert np.degrees(abs(yaw[1] - yaw[0])) > 15
+    near = [draw_frame(setup, f, float(yaw[0]), float(pitch[0]), rng) for f in range(2)]
+    far = draw_frame(setup, 2, float(yaw[1]), float(pitch[1]), rng)
+    tr = Tracker(setup, calibration, "geometric")
+    before = tr.process(near[0], 0) + tr.process(near[1], 1)
+    last_ok = max(s.time_s for s in before if s.ok)
+    out = tr.process(far, 2)
+    jumped = [s for s in out if s.reason == IMPLAUSIBLE_JUMP]
+    assert jumped and not any(s.ok and s.time_s - last_ok <= JUMP_AGE_S for s in out)
+    assert all(np.isnan(s.screen_xy_m).all() for s in jumped)
+    # The same frame with no recent sample before it: identified and accepted.
+    fresh = Tracker(setup, calibration, "geometric").process(far, 2)
+    assert any(s.ok for s in fresh) and not any(s.reason == IMPLAUSIBLE_JUMP for s in fresh)
+
+
 def test_frame_start_shifts_sample_times(setup, calibration, frames):
     tr = Tracker(setup, calibration)
     a = tr.process(frames[0][0], 0)
