@@ -207,10 +207,8 @@ def fit_cornea(problem: FitProblem, glints_px, mask=None, x0=None, *, model: str
         else:
             x0 = _solve.shared_first_step(model, problem, glints, mask, x0[0], enough)
         x0 = np.clip(x0, lo, hi)
-    if solver == "lm":
-        x, rms, iters, converged = _solve.lm(model, problem, glints, mask, x0, enough, lo, hi, max_iter, prior)
-    else:
-        x, rms, iters, converged = _solve.trf(model, problem, glints, mask, x0, enough, lo, hi, max_iter, prior)
+    run = _solve.lm if solver == "lm" else _solve.trf
+    x, rms, iters, converged = run(model, problem, glints, mask, x0, enough, lo, hi, max_iter, prior)
     reason = np.full(B, OK, dtype=object)
     reason[~converged] = NOT_CONVERGED
     reason[~np.isfinite(x).all(axis=1)] = NON_FINITE

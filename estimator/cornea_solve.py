@@ -245,6 +245,7 @@ def _solve_small(A, b):
         x = np.einsum("jib,bj->bi", C.reshape(p, p, -1), b) / det[:, None]
     return x, det
 
+
 def gather(glints, mask, lights):
     """Each sample's seen glints first, cut to the largest count k: glints (B, k, 2), mask
     (B, k) and the matching lights (B, k, 3). A band holds a few of the n lights' glints and a

@@ -25,6 +25,10 @@ BOHME_CORNEA_RADIUS_M = 7.98e-3
 BOHME_CORNEA_OFFSET_M = 4.35e-3
 BOHME_LIMBUS_DEPTH_M = 3.54e-3
 CORNEA_REFRACTIVE_INDEX = 1.376
+#: Fastest eye rotation the estimator allows for (deg/s): saccade peak speeds follow the main
+#: sequence up to ~500 deg/s (Baloh et al. 1975, the asymptote :mod:`scet_render.motion`
+#: renders) and reach 600-700 deg/s in the largest saccades; 600 deg/s covers them.
+EYE_SPEED_MAX_DEG_S = 600.0
 
 
 def gaze_direction(yaw_rad, pitch_rad) -> np.ndarray:

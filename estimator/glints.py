@@ -80,7 +80,7 @@ import numpy as np
 
 from . import glint_spots
 from .banding import NO_PULSE
-from .eye import gaze_direction
+from .eye import EYE_SPEED_MAX_DEG_S, gaze_direction
 from .glint_noise import _NOISE_STEP, _flat_true, _line_kernel, _NoiseModel
 from .glint_spots import (
     _Boxes,
@@ -417,13 +417,14 @@ class GlintDetector:
         Growth of the window beyond the glints found (px, >= 0). Default:
         :func:`window_margin_px` of the setup at ``eye_speed_deg_s``.
     eye_speed_deg_s : float
-        Eye rotation speed the default margin allows for: 600°/s, above the peak speed of
-        the largest saccades' main sequence (~500°/s, Baloh et al. 1975).
+        Eye rotation speed the default margin allows for
+        (:data:`estimator.eye.EYE_SPEED_MAX_DEG_S`, 600°/s).
     """
 
     def __init__(self, setup: Setup, params: DetectionParams = DetectionParams(), *,
                  refresh_frames: int = 30, level_drift: float = 0.05, track_roi: bool = True,
-                 roi_margin_px: int | None = None, eye_speed_deg_s: float = 600.0):
+                 roi_margin_px: int | None = None,
+                 eye_speed_deg_s: float = EYE_SPEED_MAX_DEG_S):
         if isinstance(refresh_frames, bool) or not isinstance(refresh_frames, (int, np.integer)) \
                 or refresh_frames < 1:
             raise ValueError(f"refresh_frames must be an integer >= 1, got {refresh_frames!r}")
@@ -509,7 +510,7 @@ class GlintDetector:
         self._box = box
 
 
-def window_margin_px(setup: Setup, eye_speed_deg_s: float = 600.0) -> int:
+def window_margin_px(setup: Setup, eye_speed_deg_s: float = EYE_SPEED_MAX_DEG_S) -> int:
     """How far (px, rounded up) any glint of ``setup`` moves in one frame period while the
     eye turns at ``eye_speed_deg_s`` in any direction: the largest singular value of each
     glint's 2 x 2 Jacobian in the Fick angles, by central differences of the closed-form

@@ -42,6 +42,7 @@ import numpy as np
 from .banding import band_layout
 from .calibration import Calibration
 from .cornea import fit_covariance
+from .eye import EYE_SPEED_MAX_DEG_S
 from .gaze import geometric_gaze, orbit_problem, polynomial_gaze, posterior_covariance
 from .glints import NO_BAND, DetectionParams, GlintDetections, GlintDetector
 from .matching import GlintMatcher, MatchParams
@@ -109,9 +110,7 @@ class BandPrior:
     Attributes
     ----------
     eye_speed_max_deg_s : float
-        Per-axis eye speed bound. Saccade peak speeds follow the main sequence up to ~500°/s
-        (Baloh et al. 1975, the asymptote :mod:`scet_render.motion` renders) and reach
-        600-700°/s in large saccades; 600°/s covers them.
+        Per-axis eye speed bound (:data:`estimator.eye.EYE_SPEED_MAX_DEG_S`).
     max_sd_deg : float
         A prior whose SD (largest axis) exceeds this is not used. The wider the prior, the
         likelier a sparse band's chain shifted by one light (~2° away) or a blob passes for the
@@ -125,7 +124,7 @@ class BandPrior:
         errs on the side of a wider posterior.
     """
 
-    eye_speed_max_deg_s: float = 600.0
+    eye_speed_max_deg_s: float = EYE_SPEED_MAX_DEG_S
     max_sd_deg: float = 0.75
     noise_px: float = 0.5
 

@@ -311,8 +311,8 @@ def _identities(samples, labels_by_key, radius_px: float):
             continue
         labelled = np.asarray(lb.glints_px, dtype=np.float64)
         gt = labelled[s.light_index]
-        d = np.linalg.norm(s.glints_px - gt, axis=1)
         d_all = np.linalg.norm(s.glints_px[:, None] - labelled[None], axis=-1)
+        d = d_all[np.arange(s.n_glints), s.light_index]
         nearest = np.where(np.isfinite(d_all), d_all, np.inf).argmin(axis=1)
         good = np.isfinite(d) & (d <= radius_px) & (nearest == s.light_index)
         correct += int(good.sum())
