@@ -7,9 +7,9 @@ rotations (every frame measures its own noise model and is searched whole), with
 error against the closed-form glints. Streaming: :class:`estimator.glints.GlintDetector` over
 120 frames of an eye making main-sequence saccades between random screen targets (each
 pulse's glints at the eye's pose at that pulse), searching every frame whole against
-searching a window around the glints, timed as whole passes over the sequence (a noise model
-and a whole-frame search every 30 frames included), alternated; the window's detections are
-checked against the whole frames'. Matching: bands as the tests build them (48 rows,
+searching a window around the glints, and the window with the detector's numpy path (what
+runs without Numba), timed as whole passes over the sequence (a noise model and a whole-frame
+search every 30 frames included), alternated; the detections are checked against each other. Matching: bands as the tests build them (48 rows,
 0.3-0.5 px noise, 5-10 % dropped glints, 1-3 spurious blobs), through
 :meth:`estimator.matching.GlintMatcher.match` with a previous-sample prior and cold, on
 paper_sim and paper_sim_doubled, with the identity rates measured on them. Usage:
@@ -31,6 +31,7 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.special import erf  # noqa: E402
 
+from estimator import glint_kernels  # noqa: E402
 from estimator.banding import row_pulse_weights  # noqa: E402
 from estimator.glints import (  # noqa: E402
     BLENDED,
@@ -167,31 +168,54 @@ def moving_sequence(setup, n_frames: int, rng):
     return frames, peak_speed
 
 
+def numpy_path(fn):
+    """``fn`` run with the detector's numpy path (no compiled kernels), as without Numba."""
+    def run():
+        enabled, glint_kernels.ENABLED = glint_kernels.ENABLED, False
+        try:
+            return fn()
+        finally:
+            glint_kernels.ENABLED = enabled
+    return run
+
+
 def bench_stream(seconds: float, n_frames: int) -> None:
     """Streaming, on a moving eye: :class:`GlintDetector` searching every frame whole against
-    searching a window around the glints (``track_roi``), timed as whole passes over the
-    sequence, alternated; the window's detections checked against the whole frame's."""
+    searching a window around the glints (``track_roi``), and the window with the numpy path
+    (what runs without Numba), timed as whole passes over the sequence, alternated; the
+    window's detections checked against the whole frame's, and the numpy path's against the
+    compiled one's."""
     setup = load_scene("paper_sim")
     frames, peak_speed = moving_sequence(setup, n_frames, np.random.default_rng(7))
-    whole, window = GlintDetector(setup, track_roi=False), GlintDetector(setup)
-    dets = [[d(fr, f) for f, fr in frames] for d in (whole, window)]
+    whole, window, plain = (GlintDetector(setup, track_roi=False), GlintDetector(setup),
+                            GlintDetector(setup))
+    passes = [lambda: [whole(fr, f) for f, fr in frames], lambda: [window(fr, f) for f, fr in frames],
+              numpy_path(lambda: [plain(fr, f) for f, fr in frames])]
+    dets = [p() for p in passes]
     windowed, retried = window.windowed, window.retried
-    gap = max((np.abs(a.glints_px - b.glints_px).max() if len(a) else 0.0)
-              for a, b in zip(*dets) if len(a) == len(b))
-    same = all(len(a) == len(b) and np.array_equal(a.strobe_index, b.strobe_index)
-               and np.array_equal(a.flags, b.flags) for a, b in zip(*dets))
-    t_whole, t_window = best_times([lambda: [whole(fr, f) for f, fr in frames],
-                                    lambda: [window(fr, f) for f, fr in frames]], 2 * seconds)
+
+    def compare(a_dets, b_dets):
+        gap = max((np.abs(a.glints_px - b.glints_px).max() if len(a) else 0.0)
+                  for a, b in zip(a_dets, b_dets) if len(a) == len(b))
+        same = all(len(a) == len(b) and np.array_equal(a.strobe_index, b.strobe_index)
+                   and np.array_equal(a.flags, b.flags) for a, b in zip(a_dets, b_dets))
+        return f"detections {'the same' if same else 'DIFFERENT'}, centroids within {gap:.1e} px"
+
+    t_whole, t_window, t_plain = best_times(passes, 3 * seconds)
+    compiled = "Numba kernels" if glint_kernels.ENABLED else "numpy (Numba not installed)"
     print(f"  streaming, {n_frames} frames of an eye making saccades (peak {peak_speed:.0f} "
           f"deg/s), {sum(map(len, dets[0])) / n_frames:.1f} glints per frame, a noise model and "
-          f"a whole-frame search every {window.refresh_frames} frames:")
+          f"a whole-frame search every {window.refresh_frames} frames; steps 2-6 by {compiled}:")
     print(f"    whole frames:                    {n_frames / t_whole:6.0f} frames/s "
           f"({t_whole / n_frames * 1e3:.3f} ms per frame)")
     print(f"    window around the glints (+{window.roi_margin_px} px): "
           f"{n_frames / t_window:6.0f} frames/s "
           f"({t_window / n_frames * 1e3:.3f} ms per frame; {t_whole / t_window:.2f}x); "
           f"{windowed} of {n_frames} frames in the window alone, {retried} searched again whole; "
-          f"detections {'the same' if same else 'DIFFERENT'}, centroids within {gap:.1e} px")
+          f"{compare(dets[0], dets[1])}")
+    print(f"    window, numpy path:              {n_frames / t_plain:6.0f} frames/s "
+          f"({t_plain / n_frames * 1e3:.3f} ms per frame; compiled {t_plain / t_window:.2f}x "
+          f"faster); {compare(dets[1], dets[2])}")
 
 
 def realistic_bands(setup, n, rng, rows=48, prior_deg=0.5):

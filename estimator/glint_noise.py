@@ -102,18 +102,18 @@ class _NoiseModel:
         t = top[:, ::_NOISE_STEP].astype(sample).ravel()
         return cls.measure(t, rows[:, ::_NOISE_STEP].astype(sample).ravel() - t, params)
 
-    def tables(self, top_level: int, centroid_floor_sigma: float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(floor, floor + ``centroid_floor_sigma`` σ, threshold) at the integer levels
-        0 .. >= ``top_level``, computed once per model (and again, longer, when a frame
-        reaches beyond them): on integer frames a look-up replaces the interpolations, with
-        the same values."""
+    def tables(self, top_level: int, centroid_floor_sigma: float) -> np.ndarray:
+        """(3, m) rows floor, floor + ``centroid_floor_sigma`` σ and threshold at the integer
+        levels 0 .. m - 1 > ``top_level``, computed once per model (and again, longer, when a
+        frame reaches beyond them): on integer frames a look-up replaces the interpolations,
+        with the same values."""
         key = float(centroid_floor_sigma)
         found = self._tables.get(key)
-        if found is None or found[0].size <= top_level:
+        if found is None or found.shape[1] <= top_level:
             level = np.arange(1 << max(int(top_level), 255).bit_length(), dtype=np.float64)
             floor = self.floor(level)
-            found = (floor, floor + key * self.sigma(level), self.threshold(level))
+            found = np.stack([floor, floor + key * self.sigma(level), self.threshold(level)])
+            found.setflags(write=False)
             self._tables[key] = found
         return found
 

@@ -3,7 +3,9 @@ the per-row pulse weights that correct its centroid and name its strobe.
 
 Components are measured on one stack of equal patches when their boxes are small
 (:func:`_measure_patches`), pixel by pixel otherwise (:func:`_measure_pixels`); both weigh the
-same pixels alike. Blended neighbours are split by :func:`_deblend`. Private to the detector:
+same pixels alike. That is the numpy path, which runs when the compiled kernels of
+:mod:`estimator.glint_kernels` are not available; on both paths blended neighbours are split by
+:func:`_deblend` and the pieces measured pixel by pixel, and the row table serves both. Private to the detector:
 the names carry a leading underscore and may change with it.
 """
 
@@ -165,6 +167,12 @@ class _Labels:
         image[row_at[rows], col_at[cols]] = 1
         n, image = cv2.connectedComponentsWithAlgorithm(image, 8, cv2.CV_32S, cv2.CCL_BOLELLI)
         return cls(image, n, row_at, col_at)
+
+    @classmethod
+    def whole(cls, image: np.ndarray, n: int) -> "_Labels":
+        """``n`` labels (background included) already on the frame's own grid."""
+        height, width = image.shape
+        return cls(image, n, np.arange(height), np.arange(width))
 
     def at(self, ys, xs) -> np.ndarray:
         """Labels of the pixels (ys, xs)."""

@@ -4,7 +4,14 @@ A glint is the corneal reflection of one strobed point light: a small bright spo
 radius at 640x480) on an eye image whose sclera, iris, skin and eyelids sit at low to moderate
 levels. Each strobe pulse lights only a band of rows (Sec. 2.3 of the SCET paper, Fig. 2), so
 every glint also carries the instant of the pulse that lit it. The pipeline is lean (it runs on
-a Raspberry Pi, one frame per 16.6 ms):
+a Raspberry Pi, one frame per 16.6 ms). Steps 2-6 after the top-hat run compiled with Numba
+when it is installed (:mod:`estimator.glint_kernels`, one call per step), and otherwise as
+numpy and OpenCV (:mod:`estimator.glint_spots`: components labelled by
+``cv2.connectedComponents`` on the frame with the rows and columns that hold no pixel above
+threshold squeezed out; small spots measured as one stack of equal patches with moments as
+matrix products, large ones pixel by pixel with ``np.add.reduceat``), at about half the frame
+rate; every path weighs the same pixels alike and gives the same detections (tested to
+1e-9 px):
 
 1. Background: a morphological white top-hat, the image minus its opening by a horizontal line
    of ``background_kernel_px`` pixels (OpenCV, on the frame's own 8/16-bit or float32 type,
@@ -27,19 +34,10 @@ a Raspberry Pi, one frame per 16.6 ms):
    sequence (it is the sensor's, not the scene's; see there when it is measured again), and
    between whole-frame searches searches only a window around the glints it found, with the
    same result for every glint inside it.
-3. Connected components (one ``cv2.connectedComponents``, 8-connected) of the pixels above
-   threshold, on the frame with the rows and columns that hold none squeezed out but one
-   between runs (the same components, ~4x fewer pixels to label than their bounding
-   rectangle); each component's area and box from the labels of its pixels (OpenCV's own
-   statistics cost 4x the labelling).
-4. Per component, over its box grown by ``centroid_margin_px``
-   (:mod:`estimator.glint_spots`): components whose grown box fits in ``_PATCH_PX`` pixels
-   each way (all unsaturated glints) as one (k, ph pw) stack of equal patches read around the
-   boxes, the patch beyond each box masked out, moments as
-   matrix products with fixed coordinate images (a few dozen numpy calls for all of them);
-   the rare larger ones (blooms, blends, clutter) pixel by pixel, one ``np.add.reduceat`` over
-   each box's contiguous pixels. Both weigh the same pixels alike (tested to 1e-9 px): the
-   intensity-weighted centroid of the top-hat above its floor (pixel-centre convention: (0, 0)
+3. Connected components (8-connected) of the pixels above threshold, with each one's area
+   and box.
+4. Per component, over its box grown by ``centroid_margin_px``, the intensity-weighted
+   centroid of the top-hat above its floor (pixel-centre convention: (0, 0)
    is the centre of the top-left pixel), with each row divided by the light it collected from
    the strobes, Σ_j w_j(y) of :func:`estimator.banding.row_pulse_weights`, clamped below at
    ``band_weight_floor``. A static glint is recorded as I(x, y) Σ_j w_j(y), so the division
@@ -78,7 +76,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from . import glint_spots
+from . import glint_kernels, glint_spots
 from .banding import NO_PULSE
 from .eye import EYE_SPEED_MAX_DEG_S, gaze_direction
 from .glint_noise import _NOISE_STEP, _flat_true, _line_kernel, _NoiseModel
@@ -560,35 +558,14 @@ def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionPa
         reach = params.background_kernel_px - 1  # the opening at x reads x ± (length - 1)
         wx0, wx1 = max(x0 - reach, 0), min(x1 + reach, img.shape[1])
         top = cv2.morphologyEx(img[y0:y1, wx0:wx1], cv2.MORPH_TOPHAT, kernel)
-        top = np.ascontiguousarray(top[:, x0 - wx0:x1 - wx0])
-        frame_shape, img = img.shape, np.ascontiguousarray(img[y0:y1, x0:x1])
+        top, frame_shape, img = top[:, x0 - wx0:x1 - wx0], img.shape, img[y0:y1, x0:x1]
+        if not glint_kernels.ENABLED:  # the numpy path reads the window by flat indices
+            top, img = np.ascontiguousarray(top), np.ascontiguousarray(img)
     height, width = img.shape
-    # Compare in the image's own type: a Python float would cast the whole frame to float64.
-    low = noise.lowest_threshold
-    idx = _flat_true(top > (math.floor(low) if top.dtype.kind == "u" else np.float32(low)))
-    if idx.size and top.dtype.kind == "u":
-        t = top.ravel().take(idx)
-        level = img.ravel().take(idx) - t  # the opening
-        idx = idx[t > noise.tables(int(level.max()), params.centroid_floor_sigma)[2].take(level)]
-    elif idx.size:
-        t = top.ravel()[idx].astype(np.float64)
-        idx = idx[t > noise.threshold(img.ravel()[idx] - t)]  # level: the opening
-    if idx.size == 0:
+    found = _components(top, img, noise, params)
+    if found is None:
         return _empty(frame_index, noise.typical_sigma, noise.typical_threshold), noise
-
-    # 3: components of the pixels above threshold, labelled with the empty rows and columns
-    # between them squeezed to one (8-connectivity is unchanged; ~4x fewer pixels to label
-    # than their bounding rectangle); their boxes from the labels of those pixels (OpenCV's
-    # per-component statistics cost 4x the labelling itself).
-    rows, cols = np.divmod(idx, width)
-    labels = _Labels.of(rows, cols, height, width)
-    lab = labels.at(rows, cols)
-    area = np.bincount(lab, minlength=labels.n)[1:]
-    order = np.argsort(lab, kind="stable")  # rows ascend within a component
-    first = np.cumsum(area) - area
-    rows, cols = rows[order], cols[order]
-    box_y0, box_y1 = rows[first], rows[first + area - 1]
-    box_x0, box_x1 = np.minimum.reduceat(cols, first), np.maximum.reduceat(cols, first)
+    labels, area, box_y0, box_y1, box_x0, box_x1 = found
     if roi is not None and _touches_inner_side(box_y0, box_y1, box_x0, box_x1,
                                                params.centroid_margin_px, roi, frame_shape):
         return None, noise
@@ -596,8 +573,7 @@ def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionPa
     if comp.size == 0:
         return _empty(frame_index, noise.typical_sigma, noise.typical_threshold), noise
 
-    # 4: centroid, shape and light of every component over its box grown by the margin:
-    # small boxes as one stack of equal patches, the rare large ones pixel by pixel.
+    # 4: centroid, shape and light of every component over its box grown by the margin.
     table, m_off = _frame_timing(sensor, setup.strobe, frame_index, params.cut_tolerance,
                                  params.band_weight_floor)
     if roi is not None:
@@ -606,18 +582,7 @@ def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionPa
         box_y0, box_y1, box_x0, box_x1 = box_y0[comp], box_y1[comp], box_x0[comp], box_x1[comp]
     box = _Boxes.grown(comp + 1, box_y0, box_y1, box_x0, box_x1, params.centroid_margin_px,
                        height, width)
-    patch_px = glint_spots._PATCH_PX
-    small = (box.gy1 - box.gy0 <= patch_px) & (box.gx1 - box.gx0 <= patch_px)
-    if small.all():
-        spots = _measure_patches(box, img, top, labels, noise, table, params)
-    else:
-        patch, pixel = np.flatnonzero(small), np.flatnonzero(~small)
-        parts = [_measure_pixels(_gather(box.take(pixel), labels), img, top, noise, table,
-                                 params)[0]]
-        if patch.size:
-            parts.insert(0, _measure_patches(box.take(patch), img, top, labels, noise, table,
-                                             params))
-        spots = _Spots.concat(parts).take(np.argsort(np.concatenate([patch, pixel])))
+    spots = _measure(box, img, top, labels, noise, table, params)
 
     # 5: split blended neighbours, then filter.
     area_out, row0, row1, edge = area[comp], box.y0, box.y1, box.edge
@@ -638,12 +603,29 @@ def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionPa
                                        .astype(np.int64)])
             row0, row1, edge = (np.concatenate([a, b]) for a, b in (
                 (row0, px2.row0), (row1, px2.row1), (edge, px2.edge)))
+    finish = glint_kernels.finish if glint_kernels.ENABLED else _finish
+    u, v, flux, area_out, peak, j_global, time_s, flags = finish(
+        spots, area_out, row0, row1, edge, blended, replaced, table, m_off, setup.strobe,
+        full_scale, params)
+    if u.size == 0:
+        return _empty(frame_index, noise.typical_sigma, noise.typical_threshold), noise
+    return GlintDetections(
+        u_px=u + x0, v_px=v + y0, intensity=flux, area_px=area_out, peak=peak - black,
+        strobe_index=j_global, time_s=time_s, flags=flags, frame_index=frame_index,
+        noise_dn=noise.typical_sigma, threshold_dn=noise.typical_threshold), noise
+
+
+def _finish(spots: _Spots, area, row0, row1, edge, blended, replaced, table, m_off: int,
+            strobe, full_scale: float, params: DetectionParams):
+    """The end of step 5 and step 6 (numpy; :func:`estimator.glint_kernels.finish` when
+    compiled): the spots that pass the filters, ordered by row, as (u, v, flux, area, peak,
+    strobe index, time, flags), the peak with the black level."""
     saturated = spots.raw_peak.astype(np.float64) >= full_scale
     good = (~replaced & (spots.flux > 0) & (spots.elong <= params.max_elongation)
             & ((spots.neighbour >= params.min_neighbour_ratio) | saturated))
-    if not good.any():
-        return _empty(frame_index, noise.typical_sigma, noise.typical_threshold), noise
-
+    sel = np.flatnonzero(good)
+    sel = sel[np.argsort(spots.v[sel], kind="stable")]
+    spots = spots.take(sel)
     # 6: band and time, from the pulse at the centroid row and its two neighbours (the only
     # ones a spot a few rows high can see): spots.light holds each spot's light and its
     # sums weighted by those three pulses' row weights.
@@ -651,25 +633,74 @@ def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionPa
     ranked = np.sort(shares, axis=0)
     lit = ranked[2] > 0
     col = spots.dom + np.argmax(shares, axis=0) - 1  # the table column of the largest share
-    strobe = setup.strobe
     j_global = np.where(lit, table.local_index[np.where(lit, col - 1, 0)] - m_off, NO_PULSE)
     time_s = np.where(lit, strobe.phase_s + j_global * strobe.period_s + 0.5 * strobe.pulse_s,
                       np.nan)
     # Cut by a band edge: the pulse's weight on a row of the spot (±1) is below its plateau.
     below = table.below_plateau
-    cut = lit & (below[row1 + 3, col] > below[row0, col])
+    cut = lit & (below[row1[sel] + 3, col] > below[row0[sel], col])
+    flags = (saturated[sel] * SATURATED | cut * CUT_BY_BAND_EDGE
+             | (lit & (ranked[1] >= params.two_pulse_share)) * TWO_PULSES
+             | edge[sel] * IMAGE_EDGE | ~lit * NO_BAND | blended[sel] * BLENDED)
+    return (spots.u, spots.v, spots.flux, area[sel], spots.raw_peak.astype(np.float64),
+            j_global.astype(np.int64), time_s, flags.astype(np.int64))
 
-    flags = (saturated * SATURATED | cut * CUT_BY_BAND_EDGE
-             | (lit & (ranked[1] >= params.two_pulse_share)) * TWO_PULSES | edge * IMAGE_EDGE
-             | ~lit * NO_BAND | blended * BLENDED)
-    sel = np.flatnonzero(good)
-    sel = sel[np.argsort(spots.v[sel], kind="stable")]
-    return GlintDetections(
-        u_px=spots.u[sel] + x0, v_px=spots.v[sel] + y0, intensity=spots.flux[sel],
-        area_px=area_out[sel], peak=spots.raw_peak[sel].astype(np.float64) - black,
-        strobe_index=j_global[sel].astype(np.int64), time_s=time_s[sel], flags=flags[sel],
-        frame_index=frame_index, noise_dn=noise.typical_sigma,
-        threshold_dn=noise.typical_threshold), noise
+
+def _components(top, img, noise: _NoiseModel, params: DetectionParams):
+    """Steps 2-3 on the top-hat ``top`` of ``img``: the components of the pixels above
+    threshold as (labels, area, y0, y1, x0, x1), the boxes inclusive and labels 1, 2, ...
+    the components in order; None when no pixel is above threshold. Compiled when
+    :data:`estimator.glint_kernels.ENABLED`, else numpy and OpenCV (C-contiguous frames)."""
+    height, width = img.shape
+    # Compare in the image's own type: a Python float would cast the whole frame to float64.
+    low = noise.lowest_threshold
+    idx = _flat_true(top > (math.floor(low) if top.dtype.kind == "u" else np.float32(low)))
+    if idx.size == 0:
+        return None
+    if glint_kernels.ENABLED:
+        image, *found = glint_kernels.components(idx, top, img, noise, params)
+        return (_Labels.whole(image, found[0].size + 1), *found) if found[0].size else None
+    if top.dtype.kind == "u":
+        t = top.ravel().take(idx)
+        level = img.ravel().take(idx) - t  # the opening
+        idx = idx[t > noise.tables(int(level.max()), params.centroid_floor_sigma)[2].take(level)]
+    else:
+        t = top.ravel()[idx].astype(np.float64)
+        idx = idx[t > noise.threshold(img.ravel()[idx] - t)]  # level: the opening
+    if idx.size == 0:
+        return None
+    # Labelled with the empty rows and columns between them squeezed to one (8-connectivity
+    # is unchanged; ~4x fewer pixels to label than their bounding rectangle); the boxes from
+    # the labels of those pixels (OpenCV's per-component statistics cost 4x the labelling).
+    rows, cols = np.divmod(idx, width)
+    labels = _Labels.of(rows, cols, height, width)
+    lab = labels.at(rows, cols)
+    area = np.bincount(lab, minlength=labels.n)[1:]
+    order = np.argsort(lab, kind="stable")  # rows ascend within a component
+    first = np.cumsum(area) - area
+    rows, cols = rows[order], cols[order]
+    return (labels, area, rows[first], rows[first + area - 1],
+            np.minimum.reduceat(cols, first), np.maximum.reduceat(cols, first))
+
+
+def _measure(box: _Boxes, img, top, labels: _Labels, noise: _NoiseModel, table,
+             params: DetectionParams) -> _Spots:
+    """Step 4 on the components of ``box``: compiled when
+    :data:`estimator.glint_kernels.ENABLED`; else small boxes as one stack of equal patches,
+    the rare large ones pixel by pixel."""
+    if glint_kernels.ENABLED:
+        return glint_kernels.measure(box, img, top, labels.image, noise, table, params)
+    small = ((box.gy1 - box.gy0 <= glint_spots._PATCH_PX)
+             & (box.gx1 - box.gx0 <= glint_spots._PATCH_PX))
+    if small.all():
+        return _measure_patches(box, img, top, labels, noise, table, params)
+    patch, pixel = np.flatnonzero(small), np.flatnonzero(~small)
+    parts = [_measure_pixels(_gather(box.take(pixel), labels), img, top, noise, table,
+                             params)[0]]
+    if patch.size:
+        parts.insert(0, _measure_patches(box.take(patch), img, top, labels, noise, table,
+                                         params))
+    return _Spots.concat(parts).take(np.argsort(np.concatenate([patch, pixel])))
 
 
 def _touches_inner_side(y0, y1, x0, x1, margin: int, roi, frame_shape) -> bool:

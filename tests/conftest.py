@@ -1,11 +1,14 @@
 """Project-wide test settings.
 
-With ``SCET_REQUIRE_ALL=1`` (set by ``.ci/run``) a test that skips because an optional
-dependency cannot be imported fails instead, so that CI never passes by silently skipping
-what it is meant to check (trimesh's ALL_DEPENDENCIES switch). It also makes hypothesis
-draw a fixed sequence of examples (the "ci" profile).
+With ``SCET_REQUIRE_ALL=1`` (set by ``.ci/run``) the session stops at once when a module of
+the package's extras (:data:`EXTRAS`) cannot be imported, and a test that skips because an
+optional dependency cannot be imported fails instead, so that CI never passes by silently
+skipping what it is meant to check (trimesh's ALL_DEPENDENCIES switch; a skip reason written
+by the test does not say "could not import", hence the check at the start). It also makes
+hypothesis draw a fixed sequence of examples (the "ci" profile).
 """
 
+import importlib
 import os
 
 import pytest
@@ -16,6 +19,24 @@ from hypothesis import settings
 settings.register_profile("ci", derandomize=True)
 if os.environ.get("SCET_REQUIRE_ALL") == "1":
     settings.load_profile("ci")
+
+
+#: Modules of the extras in pyproject.toml ('render', 'fast', 'test') and of matplotlib.
+EXTRAS = ("mitsuba", "drjit", "OpenEXR", "trimesh", "numba", "hypothesis", "matplotlib")
+
+
+def pytest_sessionstart(session):
+    if os.environ.get("SCET_REQUIRE_ALL") != "1":
+        return
+    missing = []
+    for name in EXTRAS:
+        try:
+            importlib.import_module(name)
+        except ImportError as exc:
+            missing.append(f"{name} ({exc})")
+    if missing:
+        raise pytest.UsageError("SCET_REQUIRE_ALL=1 but these required modules cannot be "
+                                "imported: " + ", ".join(missing))
 
 
 @pytest.hookimpl(hookwrapper=True)

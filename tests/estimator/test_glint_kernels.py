@@ -1,0 +1,110 @@
+"""The compiled steps of glint detection (:mod:`estimator.glint_kernels`) against OpenCV's
+connected components and the numpy pixel-by-pixel reference, on what the detector's own tests
+do not reach: arbitrary masks, levels far beyond 10 bits, and the window's views.
+
+The detections of every fast path are held to the reference on eye frames, borders, blooms,
+blends and 8/16-bit and float frames in ``test_glints.py``.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from estimator import glint_kernels
+from estimator.glint_noise import _NoiseModel
+from estimator.glints import DetectionParams, GlintDetector, detect_glints
+from estimator.scene import load_scene
+from scet_render.simulate import ground_truth_glints
+from tests.estimator.test_glints import SAME_SPOT_PX, banded_frame
+
+pytest.importorskip("numba")
+
+
+@pytest.fixture(scope="module")
+def setup():
+    return load_scene("paper_sim")
+
+
+@pytest.fixture
+def reference(monkeypatch):
+    """detect_glints on the numpy pixel-by-pixel path."""
+    import estimator.glint_spots as glint_spots
+
+    def detect(*args, **kwargs):
+        with monkeypatch.context() as m:
+            m.setattr(glint_kernels, "ENABLED", False)
+            m.setattr(glint_spots, "_PATCH_PX", 0)
+            return detect_glints(*args, **kwargs)
+    return detect
+
+
+def assert_same(a, b):
+    assert len(a) == len(b)
+    assert np.abs(a.glints_px - b.glints_px).max(initial=0.0) < SAME_SPOT_PX
+    assert np.allclose(a.intensity, b.intensity, rtol=1e-12, atol=0)
+    for name in ("area_px", "peak", "strobe_index", "flags", "time_s"):
+        assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True), name
+
+
+def test_enabled_with_numba():
+    assert glint_kernels.ENABLED
+
+
+@pytest.mark.parametrize("density", [0.002, 0.05, 0.3])
+def test_components_are_opencvs_eight_connected_components(density):
+    """On random masks (isolated pixels to a percolating tangle, touching every border): the
+    same partition into 8-connected components as OpenCV, labelled in the order of their
+    first pixels row by row, with their areas and inclusive boxes."""
+    rng = np.random.default_rng(int(density * 1000))
+    height, width = 61, 97
+    mask = rng.random((height, width)) < density
+    top = np.where(mask, 100, 0).astype(np.uint16)  # above any threshold where masked
+    img = top + np.uint16(20)
+    model = _NoiseModel.measure(np.zeros(64, np.int64), np.full(64, 20, np.int64),
+                                DetectionParams())
+    idx = np.flatnonzero(mask)
+    labels, area, y0, y1, x0, x1 = glint_kernels.components(idx, top, img, model,
+                                                            DetectionParams())
+    n, ref = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
+    assert area.size == n - 1
+    # The same partition: a one-to-one map between the two labellings on the masked pixels.
+    pairs = np.unique(np.stack([labels[mask], ref[mask]]), axis=1)
+    assert pairs.shape[1] == n - 1
+    assert np.array_equal(labels[~mask], np.zeros((~mask).sum(), np.int32))
+    # Labels in the order of the components' first pixels, row by row.
+    first = np.array([np.flatnonzero((labels == c).ravel())[0] for c in range(1, n)])
+    assert (np.diff(first) > 0).all()
+    for c in range(1, n):
+        ys, xs = np.nonzero(labels == c)
+        assert area[c - 1] == ys.size
+        assert (y0[c - 1], y1[c - 1], x0[c - 1], x1[c - 1]) == (ys.min(), ys.max(), xs.min(),
+                                                                xs.max())
+
+
+def test_levels_beyond_the_first_tables(setup, reference):
+    """A 16-bit frame whose background sits at ~4,000-5,000 DN (a 12-bit sensor, scaled): the
+    noise tables are built for 256 levels first and grown when a pixel needs more; the same
+    detections as the reference."""
+    rng = np.random.default_rng(5)
+    g, vis, _ = ground_truth_glints(setup, 0.05, -0.02)
+    frame = banded_frame(setup, g[vis], 1.0, 400.0, rng).astype(np.uint16) * np.uint16(4)
+    frame += np.uint16(3000)
+    params = DetectionParams(saturation_dn=65535.0)
+    det = detect_glints(frame, setup, params=params)
+    assert len(det) >= 20
+    assert_same(det, reference(frame, setup, params=params))
+
+
+def test_window_views_match_the_whole_frame(setup):
+    """The detector hands the kernels views of the window (not copies): a window's glints are
+    those the whole frame gives, on frames of a slow drift."""
+    rng = np.random.default_rng(8)
+    window, whole = GlintDetector(setup), GlintDetector(setup, track_roi=False)
+    for f in range(6):
+        g, vis, _ = ground_truth_glints(setup, 0.1 + 0.003 * f, -0.04)
+        frame = banded_frame(setup, g[vis], 0.9, 350.0, rng, frame_index=f)
+        a, b = window(frame, f), whole(frame, f)
+        assert_same(a, b)
+    assert window.windowed >= 4
