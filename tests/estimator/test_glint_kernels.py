@@ -17,7 +17,11 @@ from estimator.glint_noise import _NoiseModel
 from estimator.glints import DetectionParams, GlintDetector, detect_glints
 from estimator.scene import load_scene
 from scet_render.simulate import ground_truth_glints
-from tests.estimator.test_glints import SAME_SPOT_PX, banded_frame
+from tests.estimator.test_glints import (  # noqa: F401 (pixel_path: a fixture)
+    assert_same_detections,
+    banded_frame,
+    pixel_path,
+)
 
 pytest.importorskip("numba")
 
@@ -25,27 +29,6 @@ pytest.importorskip("numba")
 @pytest.fixture(scope="module")
 def setup():
     return load_scene("paper_sim")
-
-
-@pytest.fixture
-def reference(monkeypatch):
-    """detect_glints on the numpy pixel-by-pixel path."""
-    import estimator.glint_spots as glint_spots
-
-    def detect(*args, **kwargs):
-        with monkeypatch.context() as m:
-            m.setattr(glint_kernels, "ENABLED", False)
-            m.setattr(glint_spots, "_PATCH_PX", 0)
-            return detect_glints(*args, **kwargs)
-    return detect
-
-
-def assert_same(a, b):
-    assert len(a) == len(b)
-    assert np.abs(a.glints_px - b.glints_px).max(initial=0.0) < SAME_SPOT_PX
-    assert np.allclose(a.intensity, b.intensity, rtol=1e-12, atol=0)
-    for name in ("area_px", "peak", "strobe_index", "flags", "time_s"):
-        assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True), name
 
 
 def test_enabled_with_numba():
@@ -83,7 +66,7 @@ def test_components_are_opencvs_eight_connected_components(density):
                                                                 xs.max())
 
 
-def test_levels_beyond_the_first_tables(setup, reference):
+def test_levels_beyond_the_first_tables(setup, pixel_path):
     """A 16-bit frame whose background sits at ~4,000-5,000 DN (a 12-bit sensor, scaled): the
     noise tables are built for 256 levels first and grown when a pixel needs more; the same
     detections as the reference."""
@@ -94,7 +77,7 @@ def test_levels_beyond_the_first_tables(setup, reference):
     params = DetectionParams(saturation_dn=65535.0)
     det = detect_glints(frame, setup, params=params)
     assert len(det) >= 20
-    assert_same(det, reference(frame, setup, params=params))
+    assert_same_detections(det, pixel_path(frame, setup, params=params))
 
 
 def test_window_views_match_the_whole_frame(setup):
@@ -106,5 +89,5 @@ def test_window_views_match_the_whole_frame(setup):
         g, vis, _ = ground_truth_glints(setup, 0.1 + 0.003 * f, -0.04)
         frame = banded_frame(setup, g[vis], 0.9, 350.0, rng, frame_index=f)
         a, b = window(frame, f), whole(frame, f)
-        assert_same(a, b)
+        assert_same_detections(a, b)
     assert window.windowed >= 4
