@@ -47,9 +47,8 @@ def test_components_are_opencvs_eight_connected_components(density):
     img = top + np.uint16(20)
     model = _NoiseModel.measure(np.zeros(64, np.int64), np.full(64, 20, np.int64),
                                 DetectionParams())
-    idx = np.flatnonzero(mask)
-    labels, area, y0, y1, x0, x1 = glint_kernels.components(idx, top, img, model,
-                                                            DetectionParams())
+    labels, area, y0, y1, x0, x1 = glint_kernels.components(np.flatnonzero(mask), top, img,
+                                                            model, DetectionParams())
     n, ref = cv2.connectedComponents(mask.astype(np.uint8), connectivity=8)
     assert area.size == n - 1
     # The same partition: a one-to-one map between the two labellings on the masked pixels.
@@ -91,3 +90,18 @@ def test_window_views_match_the_whole_frame(setup):
         a, b = window(frame, f), whole(frame, f)
         assert_same_detections(a, b)
     assert window.windowed >= 4
+
+
+def test_label_image_holds_no_labels_of_the_previous_call():
+    """The label image is reused per thread and only the last call's pixels are cleared:
+    after a dense mask, then windows of other sizes, nothing but the new labels remains."""
+    rng = np.random.default_rng(3)
+    model = _NoiseModel.measure(np.zeros(64, np.int64), np.full(64, 20, np.int64),
+                                DetectionParams())
+    for height, width, density in ((80, 120, 0.4), (50, 60, 0.01), (90, 130, 0.2), (40, 41, 0)):
+        mask = rng.random((height, width)) < density
+        top = np.where(mask, 100, 0).astype(np.uint16)
+        labels, area = glint_kernels.components(np.flatnonzero(mask), top, top + np.uint16(20),
+                                                model, DetectionParams())[:2]
+        assert labels.shape == (height, width)
+        assert ((labels != 0) == mask).all()
