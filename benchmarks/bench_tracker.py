@@ -4,7 +4,8 @@ Frames: 640x480 10-bit banded frames of paper_sim (Gaussian glints at their clos
 positions for an eye making saccades, each pulse's glints at the eye's pose then, every pulse's
 row weights, an eye-like background, shot and read noise; :func:`bench_glints.moving_sequence`),
 or with ``--dataset DIR`` the PNG frames of a rendered dataset. Detection is timed through
-:class:`estimator.glints.GlintDetector` (one pass over the frames as a stream); the
+:class:`estimator.glints.GlintDetector` (one pass over the frames as a stream, after a warm-up
+that loads its compiled kernels); the
 end-to-end figure through :meth:`estimator.tracker.Tracker.process` (detect, group by strobe,
 match with the previous sample as prior, fit, map), both gaze methods. Usage:
 
@@ -75,6 +76,8 @@ def main(argv=None):
     print(f"{platform.processor() or platform.machine()}, {len(frames)} frames "
           f"{setup.camera.width_px}x{setup.camera.height_px}, one core")
 
+    for f, img in frames[:2]:  # load (or compile) the detector's kernels before timing
+        GlintDetector(setup)(img, f)
     detector = GlintDetector(setup)
     t = time.perf_counter()
     n_glints = sum(len(detector(img, f)) for f, img in frames)
