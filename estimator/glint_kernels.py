@@ -295,12 +295,12 @@ if numba is not None:
 def _model(img: np.ndarray, noise, params, top_level: int):
     """The noise model's arguments of the kernels: integer frames get the tables up to at
     least ``top_level``, float ones the model's nodes."""
-    if img.dtype.kind == "u":
-        tables = noise.tables(top_level, params.centroid_floor_sigma)
+    if img.dtype.kind == "u":  # the nodes are not read
+        tables, nodes = noise.tables(top_level, params.centroid_floor_sigma), noise.floors
     else:
-        tables = np.zeros((3, 0))
-    return (tables, noise.levels, noise.floors, noise.sigmas, noise.floors + noise.k * noise.sigmas,
-            float(noise.slope), float(params.centroid_floor_sigma), float(noise.k))
+        tables, nodes = np.zeros((3, 0)), noise.floors + noise.k * noise.sigmas
+    return (tables, noise.levels, noise.floors, noise.sigmas, nodes, float(noise.slope),
+            float(params.centroid_floor_sigma), float(noise.k))
 
 
 _scratch = threading.local()
@@ -348,7 +348,7 @@ def measure(box, img, top, labels: np.ndarray, noise, table, params):
     top_level = 255
     while True:
         short, spots = _measure_kernel(
-            img, top, labels, box.ids.astype(np.int32), box.gy0, box.gy1, box.gx0, box.gx1,
+            img, top, labels, box.ids, box.gy0, box.gy1, box.gx0, box.gx1,
             *_model(img, noise, params, top_level), table.gain, table.dominant, table.weights)
         if short < 0:
             return _Spots(*spots)
