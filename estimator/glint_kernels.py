@@ -322,20 +322,27 @@ def _label_image(height: int, width: int) -> np.ndarray:
     return base[:height, :width]
 
 
+def _with_tables(kernel, img: np.ndarray, noise, params):
+    """``kernel(model)`` (its first result: the largest level the tables miss, -1 when none)
+    with the model's arguments (:func:`_model`), the integer tables grown until they reach
+    every level the kernel meets. Returns the kernel's other results."""
+    top_level = 255
+    while True:
+        short, *out = kernel(_model(img, noise, params, top_level))
+        if short < 0:
+            return out
+        top_level = int(short)
+
+
 def components(idx: np.ndarray, top: np.ndarray, img: np.ndarray, noise, params):
     """Steps 2 (the exact threshold) and 3 on the flat indices ``idx`` of the pixels whose
     top-hat exceeds the noise model's lowest threshold (sorted). Returns the (height, width)
     int32 label image (0: background; a view valid until this thread's next call) and, per
     component (labelled 1, 2, ... in the order of their first pixels, row by row), its area
     and inclusive box y0, y1, x0, x1."""
-    top_level = 255
-    while True:
-        image = _label_image(*top.shape)
-        short, rows, cols, *found = _components_kernel(image, idx, top, img,
-                                                       *_model(img, noise, params, top_level))
-        if short < 0:
-            break
-        top_level = int(short)
+    image = _label_image(*top.shape)  # a kernel that misses a level labels nothing
+    rows, cols, *found = _with_tables(
+        lambda model: _components_kernel(image, idx, top, img, *model), img, noise, params)
     _scratch.written = (image, rows, cols)
     return image, *found
 
@@ -345,14 +352,11 @@ def measure(box, img, top, labels: np.ndarray, noise, table, params):
     ``box`` (a ``glint_spots._Boxes``), as a ``glint_spots._Spots``."""
     from .glint_spots import _Spots
 
-    top_level = 255
-    while True:
-        short, spots = _measure_kernel(
-            img, top, labels, box.ids, box.gy0, box.gy1, box.gx0, box.gx1,
-            *_model(img, noise, params, top_level), table.gain, table.dominant, table.weights)
-        if short < 0:
-            return _Spots(*spots)
-        top_level = int(short)
+    spots, = _with_tables(
+        lambda model: _measure_kernel(img, top, labels, box.ids, box.gy0, box.gy1, box.gx0,
+                                      box.gx1, *model, table.gain, table.dominant,
+                                      table.weights), img, noise, params)
+    return _Spots(*spots)
 
 
 def finish(spots, area, row0, row1, edge, blended, replaced, table, m_off: int, strobe,
