@@ -1,0 +1,145 @@
+"""SCET's files on disk: every name and format version in one place, the version check, and
+the one atomic write.
+
+Every file SCET writes is versioned (a ``format`` name and an integer ``version`` in its JSON
+header, or its first line) and checked on load, and every file is written atomically: to a
+temporary name beside the target, flushed to disk, then moved onto the target with
+:func:`os.replace`, so that a reader sees either the old file or the whole new one. The
+temporary name is unique per writer (``<name>.<pid>-<n>.partial``): two processes writing one
+file never write into each other's temporary, and the last rename wins with a whole file. A
+failed write removes its temporary. Folders that are written into can be swept of the
+temporaries of killed runs with :func:`remove_partials`.
+
+Folder layout (rendered datasets and prototype captures)::
+
+    manifest.json  labels.jsonl  timing.json  frames/NNNNNN.png  frames/NNNNNN.exr
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import threading
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Iterator
+
+__all__ = [
+    "TIMING_FORMAT", "TIMING_VERSION", "SAMPLES_FORMAT", "SAMPLES_VERSION", "SAMPLES_READABLE",
+    "CALIBRATION_FORMAT", "CALIBRATION_VERSION", "MAPPING_FORMAT", "MAPPING_VERSION",
+    "DATASET_FORMAT", "DATASET_VERSION", "GLINTS_FORMAT", "GLINTS_VERSION",
+    "TIMING_NAME", "MANIFEST_NAME", "LABELS_NAME", "FRAMES_DIR", "PARTIAL_SUFFIX",
+    "frame_name", "check_format", "read_json", "atomic_file", "atomic_write", "remove_partials",
+]
+
+TIMING_FORMAT, TIMING_VERSION = "scet-timing", 1
+SAMPLES_FORMAT, SAMPLES_VERSION = "scet-samples", 2
+#: Versions the samples reader accepts (version 1 has no ``prior`` column).
+SAMPLES_READABLE = (1, 2)
+CALIBRATION_FORMAT, CALIBRATION_VERSION = "scet-calibration", 1
+MAPPING_FORMAT, MAPPING_VERSION = "scet-gaze-mapping", 1
+DATASET_FORMAT, DATASET_VERSION = "scet-dataset", 1
+GLINTS_FORMAT, GLINTS_VERSION = "scet-glints", 1
+
+TIMING_NAME, MANIFEST_NAME, LABELS_NAME, FRAMES_DIR = (
+    "timing.json", "manifest.json", "labels.jsonl", "frames")
+PARTIAL_SUFFIX = ".partial"
+
+
+def frame_name(frame: int, ext: str) -> str:
+    """``NNNNNN.ext``: the file name of frame ``frame`` in a ``frames/`` folder."""
+    return f"{int(frame):06d}.{ext}"
+
+
+def check_format(data, path, fmt: str, versions, error: type[Exception] = ValueError) -> int:
+    """The version of the parsed JSON document ``data``, checked.
+
+    Raises ``error`` naming ``path`` unless ``data`` is an object whose ``"format"`` is ``fmt``
+    and whose ``"version"`` is ``versions`` (an int) or one of them (a tuple).
+    """
+    allowed = (versions,) if isinstance(versions, int) else tuple(versions)
+    if not isinstance(data, dict):
+        raise error(f"{path}: expected a {fmt!r} document (a JSON object), got "
+                    f"{type(data).__name__}")
+    if data.get("format") != fmt:
+        raise error(f"{path}: key 'format' is {data.get('format')!r}, expected {fmt!r}")
+    version = data.get("version")
+    if isinstance(version, bool) or version not in allowed:
+        want = allowed[0] if len(allowed) == 1 else f"one of {allowed}"
+        raise error(f"{path}: key 'version': this SCET reads {fmt} version {want}, the file "
+                    f"says {version!r}")
+    return int(version)
+
+
+def read_json(path, error: type[Exception] = ValueError):
+    """The parsed JSON document at ``path``; ``error`` naming the file if it cannot be read."""
+    try:
+        return json.loads(Path(path).read_bytes().decode("utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
+        raise error(f"{path}: cannot read JSON ({exc})") from None
+
+
+_counter = itertools.count()
+_counter_lock = threading.Lock()
+
+
+def _partial_name(path: Path) -> Path:
+    with _counter_lock:
+        n = next(_counter)
+    return path.with_name(f"{path.name}.{os.getpid()}-{threading.get_ident() % 100000}-{n}"
+                          f"{PARTIAL_SUFFIX}")
+
+
+@contextmanager
+def atomic_file(path) -> Iterator[Path]:
+    """A temporary path to write ``path``'s new content to; moved onto ``path`` on success.
+
+    For writers that need a file name (OpenEXR, image encoders)::
+
+        with atomic_file(out / "frame.exr") as tmp:
+            write_exr(tmp, ...)
+
+    The parent folder is created. On an exception the temporary is removed and ``path`` is left
+    as it was.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = _partial_name(path)
+    try:
+        yield tmp
+        with open(tmp, "rb+") as fh:
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            tmp.unlink()
+        except OSError:
+            pass
+        raise
+
+
+def atomic_write(path, data: bytes | str) -> Path:
+    """Write ``data`` (``str`` as UTF-8) to ``path`` atomically (see the module docstring)."""
+    if isinstance(data, str):
+        data = data.encode("utf-8")
+    with atomic_file(path) as tmp:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+    return Path(path)
+
+
+def remove_partials(folder) -> int:
+    """Remove the temporaries that killed writers left in ``folder`` (not recursive); their count."""
+    removed = 0
+    folder = Path(folder)
+    if not folder.is_dir():
+        return 0
+    for p in folder.iterdir():
+        if p.name.endswith(PARTIAL_SUFFIX) and p.is_file():
+            try:
+                p.unlink()
+                removed += 1
+            except OSError:
+                pass
+    return removed
