@@ -23,7 +23,7 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import numpy as np  # noqa: E402
 
-from estimator.cornea import FitProblem, fit_cornea  # noqa: E402
+from estimator.cornea import FitProblem, fit_cornea
 from estimator.scene import load_scene  # noqa: E402
 from scet_render.simulate import simulate_glints  # noqa: E402
 

@@ -20,7 +20,7 @@ for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import numpy as np  # noqa: E402
 
 from estimator.eye import gaze_direction  # noqa: E402
-from estimator.projection import project_glints  # noqa: E402
+from estimator.geometry import project_glints
 from estimator.scene import load_scene  # noqa: E402
 
 

@@ -2,7 +2,7 @@
 
 A banded frame renders each of the frame's strobes only over the rows it lights, at the eye
 pose of its instant, plus the ambient light over every row's exposure window
-(:class:`scet_render.rolling_shutter.BandedRenderer`); a global-shutter frame renders every row
+(:class:`scet_render.render.rolling_shutter.BandedRenderer`); a global-shutter frame renders every row
 once at one pose. Their ratio is the price of banding: the bands overlap by ~3 rows (about
 1.06 frames of rows in all), every strobe moves the eye (a BVH rebuild) and launches its own
 kernel, and a moving eye adds ambient-only instants. Rendering every strobe as a full frame
@@ -28,7 +28,7 @@ import numpy as np
 
 from estimator.scene import load_scene
 from scet_render.motion import FixationalNoise, fixation_sequence
-from scet_render.rolling_shutter import BandedRenderer
+from scet_render.render import BandedRenderer
 
 
 def timed(fn) -> tuple[float, float]:

@@ -30,9 +30,9 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_glints import moving_sequence  # noqa: E402
 
-from estimator.calibration import Calibration, fit_gaze_mapping  # noqa: E402
+from estimator.calibration import Calibration, fit_gaze_mapping
 from estimator.gaze import fit_cornea_centers  # noqa: E402
-from estimator.glints import GlintDetector  # noqa: E402
+from estimator.glints import GlintDetector
 from estimator.scene import load_scene  # noqa: E402
 from estimator.folders import iter_folder  # noqa: E402
 from estimator.tracker import Tracker  # noqa: E402
@@ -65,7 +65,7 @@ def main(argv=None):
     if args.dataset is not None:
         import json
 
-        from scet_render.validate import scaled_setup
+        from estimator.banding import scaled_setup
 
         width = json.loads((args.dataset / "manifest.json").read_text())["image"]["width_px"]
         setup = scaled_setup(setup, setup.camera.width_px // int(width))

@@ -25,7 +25,6 @@ import io
 import json
 import logging
 import math
-import os
 import re
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -35,21 +34,18 @@ import cv2
 import numpy as np
 
 from .calibration import Calibration, calibrate_joint
+from .formats import (FRAMES_DIR, LABELS_NAME, MANIFEST_NAME, SAMPLES_FORMAT, SAMPLES_READABLE,
+                      SAMPLES_VERSION, TIMING_FORMAT, TIMING_NAME, TIMING_VERSION, atomic_write,
+                      check_format, read_json)
 from .gaze import fit_cornea_centers
 from .glints import NO_BAND, detect_glints
-from .mapping import fit_gaze_mapping
+from .calibration import fit_gaze_mapping
 from .matching import GlintMatcher
 from .setup import Setup
 from .tracker import MIN_GLINTS, MISSING_FRAME, UNREADABLE_FRAME, Tracker, TrackerInputError
 
 log = logging.getLogger(__name__)
 
-TIMING_FORMAT, TIMING_VERSION = "scet-timing", 1
-SAMPLES_FORMAT, SAMPLES_VERSION = "scet-samples", 2
-#: Versions :func:`read_samples_csv` reads (version 1 has no ``prior`` column).
-SAMPLES_READABLE = (1, 2)
-TIMING_NAME, MANIFEST_NAME, LABELS_NAME, FRAMES_DIR = (
-    "timing.json", "manifest.json", "labels.jsonl", "frames")
 
 _FRAME_NAME = re.compile(r"^(\d+)\.png$")
 
@@ -108,7 +104,7 @@ def read_timing(folder, setup: Setup) -> FolderTiming:
         return _parse_timing(path)
     manifest = folder / MANIFEST_NAME
     if manifest.is_file():
-        data = _read_json(manifest)
+        data = read_json(manifest, TrackerInputError)
         try:
             frames = int(data["frames"])
             width, height = int(data["image"]["width_px"]), int(data["image"]["height_px"])
@@ -124,27 +120,9 @@ def read_timing(folder, setup: Setup) -> FolderTiming:
                             f"no {MANIFEST_NAME}; cannot time the frames")
 
 
-def _read_json(path: Path):
-    try:
-        return json.loads(path.read_bytes().decode("utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise TrackerInputError(f"{path}: cannot read JSON ({exc})") from None
-
-
-def check_format(data, path, fmt: str, version: int, error=TrackerInputError) -> None:
-    """Raise ``error`` naming ``path`` unless the parsed JSON document ``data`` is an object
-    whose "format" is ``fmt`` and whose "version" is ``version`` (SCET's versioned files)."""
-    if not isinstance(data, dict) or data.get("format") != fmt:
-        got = data.get("format") if isinstance(data, dict) else type(data).__name__
-        raise error(f"{path}: format is {got!r}, expected {fmt!r}")
-    if data.get("version") != version:
-        raise error(f"{path}: this SCET reads {fmt} version {version}, the file says "
-                    f"{data.get('version')!r}")
-
-
 def _parse_timing(path: Path) -> FolderTiming:
-    data = _read_json(path)
-    check_format(data, path, TIMING_FORMAT, TIMING_VERSION)
+    data = read_json(path, TrackerInputError)
+    check_format(data, path, TIMING_FORMAT, TIMING_VERSION, TrackerInputError)
     frames = data.get("frames")
     if not isinstance(frames, dict) or not frames:
         raise TrackerInputError(f"{path}: key 'frames' must be a non-empty object "
@@ -310,7 +288,7 @@ def calibrate_from_folder(folder, setup: Setup) -> Calibration:
 def save_calibration(calibration: Calibration, path) -> Path:
     """Write a calibration file (versioned JSON) atomically."""
     path = Path(path)
-    _atomic_write(path, calibration.to_json().encode("utf-8"))
+    atomic_write(path, calibration.to_json())
     return path
 
 
@@ -391,7 +369,7 @@ def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "p
         if progress is not None:
             progress(done, total)
     out_csv = Path(out_csv)
-    _atomic_write(out_csv, samples_csv(samples).encode("utf-8"))
+    write_samples_csv(out_csv, samples)
     return TrackSummary(out_csv, tuple(samples), total)
 
 
@@ -409,6 +387,11 @@ def samples_csv(samples) -> str:
                     ";".join(str(int(i)) for i in s.light_index), repr(float(s.residual_px)),
                     s.reason, int(s.prior_assisted)])
     return buf.getvalue()
+
+
+def write_samples_csv(path, samples) -> Path:
+    """Write :func:`samples_csv` of ``samples`` to ``path`` atomically; returns the path."""
+    return atomic_write(Path(path), samples_csv(samples))
 
 
 def read_samples_csv(path) -> list[dict]:
@@ -429,13 +412,3 @@ def read_samples_csv(path) -> list[dict]:
         for r in rows:
             r["prior"] = "0"
     return rows
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(tmp, "wb") as fh:
-        fh.write(data)
-        fh.flush()
-        os.fsync(fh.fileno())
-    os.replace(tmp, path)

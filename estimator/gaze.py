@@ -28,8 +28,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .calibration import Calibration, GazeMapping
-from .cornea import (NON_FINITE, NOT_CONVERGED, OK, TOO_FEW_GLINTS, CorneaFit, FitProblem,
-                     fit_cornea, fit_covariance)
+from .cornea import NON_FINITE, NOT_CONVERGED, OK, TOO_FEW_GLINTS, CorneaFit, FitProblem, fit_cornea, fit_covariance
 from .eye import gaze_direction
 
 #: The optical axis does not reach the screen plane (it points away from it).

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .camera import Camera
+from .geometry import Camera
 from .errors import SceneError
 from .eye import BOHME_CORNEA_OFFSET_M, BOHME_CORNEA_RADIUS_M, BOHME_LIMBUS_DEPTH_M, Eye
 from .geometry import RigidPose, look_at_rotation, rotation_from_vector, rotation_matrix

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .camera import Camera
+from .geometry import Camera
 from .eye import Eye
 from .geometry import RigidPose, as_points
 

@@ -39,7 +39,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from .banding import band_layout
+from .banding import band_layout, strobe_instant
 from .calibration import Calibration
 from .cornea import fit_covariance
 from .eye import EYE_SPEED_MAX_DEG_S
@@ -287,7 +287,7 @@ class Tracker:
         sensor, strobe = self.setup.sensor, self.setup.strobe
         shift = 0.0 if frame_start_s is None else float(frame_start_s) - frame_index * sensor.frame_period_s
         bands = [b for b in band_layout(sensor, strobe, frame_index) if b.visible]
-        times = [b.strobe_time_s + 0.5 * strobe.pulse_s + shift for b in bands]
+        times = [strobe_instant(b.strobe_time_s, strobe.pulse_s) + shift for b in bands]
         try:
             reason = self._check(frame)
             if reason is not None:

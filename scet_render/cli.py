@@ -133,7 +133,7 @@ class _StageBars:
 
 def cmd_render(args) -> int:
     from estimator.scene import load_scene
-    from scet_render.dataset import render_dataset
+    from .dataset import render_dataset
 
     setup = load_scene(args.scene)
     bar, update = _progress_bar(args.frames, "frame", f"render {setup.name}")
@@ -150,7 +150,7 @@ def cmd_render(args) -> int:
 
 def cmd_export_mitsuba(args) -> int:
     from estimator.scene import load_scene
-    from scet_render.scene import SceneOptions, export_mitsuba
+    from .render import SceneOptions, export_mitsuba
 
     setup = load_scene(args.scene)
     options = SceneOptions(channels="grey", cornea=args.cornea)
@@ -188,7 +188,7 @@ def cmd_track(args) -> int:
 
 
 def cmd_validate(args) -> int:
-    from scet_render.validate import run_validation, table_markdown
+    from .validate import run_validation, table_markdown
 
     bars = _StageBars()
     try:
@@ -205,7 +205,7 @@ def cmd_validate(args) -> int:
 
 
 def cmd_reproduce(args) -> int:
-    from scet_render.reproduce import run_reproduction
+    from .reproduce import run_reproduction
 
     bars = _StageBars()
     try:

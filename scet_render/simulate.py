@@ -1,7 +1,7 @@
 """Feature-level simulator: gaze targets -> eye rotation -> cornea centre -> glints (+ noise).
 
 This is the framework of Böhme et al. (2008) that the SCET paper's Sec. 3 runs on: the only
-image features are the glints, computed in closed form (:func:`estimator.projection.project_glints`)
+image features are the glints, computed in closed form (:func:`estimator.geometry.project_glints`)
 and perturbed by the feature position error e_f, uniform in [-e_f, e_f] pixels on each axis
 (or, as an option, Gaussian with standard deviation e_f). Vectorised over targets and lights.
 """
@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from estimator.eye import gaze_direction
-from estimator.projection import project_glints
+from estimator.formats import GLINTS_FORMAT, GLINTS_VERSION, atomic_file
+from estimator.geometry import project_glints
 from estimator.setup import Setup
 
-SIM_FORMAT = "scet-glints"
-SIM_VERSION = 1
+SIM_FORMAT, SIM_VERSION = GLINTS_FORMAT, GLINTS_VERSION
 NOISE_MODELS = ("uniform", "gaussian")
 
 
@@ -200,16 +200,23 @@ def save_observations(path: str | Path, obs: GlintObservations, setup: Setup) ->
         "noise_model": obs.noise_model, "seed": obs.seed, "units": {
             "targets_m": "m", "cornea_center_m": "m", "angles": "rad", "glints": "px (pixel centres)"},
     }
-    tmp = path.with_name(path.name + ".partial")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if path.suffix == ".npz":
+    if path.suffix not in (".npz", ".csv"):
+        raise ValueError(f"{path}: output must end in .npz or .csv")
+    with atomic_file(path) as tmp:
+        _write_observations(tmp, path.suffix, meta, obs, setup)
+    return path
+
+
+def _write_observations(tmp: Path, suffix: str, meta: dict, obs: GlintObservations,
+                        setup: Setup) -> None:
+    if suffix == ".npz":
         with open(tmp, "wb") as f:
             np.savez_compressed(
                 f, meta_json=np.array(json.dumps(meta)), targets_m=obs.targets_m,
                 yaw_rad=obs.yaw_rad, pitch_rad=obs.pitch_rad, cornea_center_m=obs.cornea_center_m,
                 glints_true_px=obs.glints_true_px, glints_px=obs.glints_px, visible=obs.visible,
                 lights_world_m=setup.lights_world_m)
-    elif path.suffix == ".csv":
+    else:
         m, n = obs.visible.shape
         ti, li = np.meshgrid(np.arange(m), np.arange(n), indexing="ij")
         cols = np.column_stack([
@@ -221,10 +228,6 @@ def save_observations(path: str | Path, obs: GlintObservations, setup: Setup) ->
                   "u_px,v_px,u_true_px,v_true_px,visible")
         np.savetxt(tmp, cols, delimiter=",", header=header, comments="",
                    fmt=["%d", "%d"] + ["%.9g"] * 3 + ["%.12g"] * 2 + ["%.6f"] * 4 + ["%d"])
-    else:
-        raise ValueError(f"{path}: output must end in .npz or .csv")
-    tmp.replace(path)
-    return path
 
 
 def load_observations(path: str | Path) -> tuple[GlintObservations, dict]:

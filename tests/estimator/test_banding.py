@@ -10,26 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimator import banding
-from estimator.banding import (
-    NO_PULSE,
-    TIME_EPS_S,
-    band_drift_rows,
-    band_gap_rows,
-    band_height,
-    band_layout,
-    band_spacing_rows,
-    exposure_start,
-    first_lit_row,
-    partial_lines,
-    plan_strobe,
-    pulse_times,
-    readout_time,
-    row_pulse_weights,
-    row_strobe,
-    tiling_period,
-    usable_lines,
-)
+from estimator.banding import layout as banding
+from estimator.banding import NO_PULSE, TIME_EPS_S, band_drift_rows, band_gap_rows, band_height, band_layout, band_spacing_rows, exposure_start, first_lit_row, partial_lines, plan_strobe, pulse_times, readout_time, row_pulse_weights, row_strobe, tiling_period, usable_lines
 from estimator.setup import Sensor, Strobe
 
 # --------------------------------------------------------------------------- tolerances

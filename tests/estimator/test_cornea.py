@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from estimator.cornea import FitProblem, fit_cornea
-from estimator.projection import glint_jacobians, project_glints
+from estimator.geometry import glint_jacobians, project_glints
 from scet_render.simulate import parse_targets, simulate_glints
 
 

@@ -1,4 +1,4 @@
-"""The fit path's packed rows (estimator.fit_rows._centre_fit_rows) against the general
+"""The fit path's packed rows (estimator.geometry.fit_rows._centre_fit_rows) against the general
 Jacobian terms: same glints, same normal equations, same fallbacks, reusable work arrays; and
 the small systems' closed-form solves."""
 
@@ -7,9 +7,9 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 import pytest
 
-from estimator import cornea_solve as solve
-from estimator.fit_rows import _centre_fit_rows
-from estimator.projection import project_glints
+from estimator.cornea import solve
+from estimator.geometry.fit_rows import _centre_fit_rows
+from estimator.geometry import project_glints
 
 #: Relative agreement of the two paths' normal equations: both are exact to rounding, summed
 #: in different orders over 40 glints.

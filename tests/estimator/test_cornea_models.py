@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from estimator.cornea import FitProblem, fit_cornea, fit_covariance
-from estimator.projection import glint_jacobians
+from estimator.geometry import glint_jacobians
 from scet_render.simulate import parse_targets, simulate_glints
 
-#: m: the LM stops on a step below 1e-7 m, which leaves <= 4e-10 m (estimator.cornea_solve).
+#: m: the LM stops on a step below 1e-7 m, which leaves <= 4e-10 m (estimator.cornea.solve).
 SAME_MINIMUM_M = 1e-8
 #: rad: the same on the orbit (1e-8 m over r_co = 4.25 mm).
 SAME_MINIMUM_RAD = 1e-8 / 4.25e-3
@@ -35,7 +35,7 @@ def test_center_and_radius_from_exact_glints(setup, solver):
     # A 7.6 mm cornea fitted from the 7.8 mm default within Read et al.'s bounds.
     truth = FitProblem(setup.camera, setup.lights_world_m, 7.6e-3)
     C = setup.eye.cornea_center(np.linspace(-0.3, 0.3, 6), np.linspace(-0.2, 0.1, 6))
-    from estimator.projection import project_glints
+    from estimator.geometry import project_glints
     g, v = project_glints(setup.camera, C, truth.cornea_radius_m, setup.lights_world_m)
     problem = FitProblem(setup.camera, setup.lights_world_m, 7.8e-3)
     x0 = np.append(setup.eye.cornea_center(0, 0), 7.8e-3)
@@ -147,7 +147,7 @@ def test_large_batches_run_in_blocks_with_the_same_answers(setup, problem, monke
     # The samples are independent: blocks of 200 must give exactly what one block gives.
     T = parse_targets("grid:24x15", setup)
     obs = simulate_glints(setup, T, noise_px=0.5, rng=np.random.default_rng(11))
-    import estimator.cornea_solve as solve
+    import estimator.cornea.solve as solve
     monkeypatch.setattr(solve, "_BLOCK", 200)
     blocks = fit_cornea(problem, obs.glints_px, obs.visible, np.zeros(2), model="orbit")
     monkeypatch.setattr(solve, "_BLOCK", 10_000)

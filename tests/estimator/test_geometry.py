@@ -6,8 +6,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from estimator.eye import Eye, eye_rotation_matrix, fick_angles, gaze_direction
-from estimator.geometry import (RigidPose, look_at_rotation, rotation_from_vector, rotation_matrix,
-                                rotation_to_vector)
+from estimator.geometry import RigidPose, look_at_rotation, rotation_from_vector, rotation_matrix, rotation_to_vector
 
 angles = st.floats(-1.2, 1.2, allow_nan=False)
 

@@ -1,4 +1,4 @@
-"""The compiled steps of glint detection (:mod:`estimator.glint_kernels`) against OpenCV's
+"""The compiled steps of glint detection (:mod:`estimator.glints.kernels`) against OpenCV's
 connected components and the numpy pixel-by-pixel reference, on what the detector's own tests
 do not reach: arbitrary masks, levels far beyond 10 bits, and the window's views.
 
@@ -12,8 +12,8 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator import glint_kernels
-from estimator.glint_noise import _NoiseModel
+from estimator.glints import kernels as glint_kernels
+from estimator.glints.noise import _NoiseModel
 from estimator.glints import DetectionParams, GlintDetector, detect_glints
 from estimator.scene import load_scene
 from scet_render.simulate import ground_truth_glints

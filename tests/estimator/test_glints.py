@@ -17,18 +17,7 @@ import pytest
 from scipy.special import erf
 
 from estimator.banding import NO_PULSE, band_layout, first_lit_row, row_pulse_weights
-from estimator.glints import (
-    BLENDED,
-    CUT_BY_BAND_EDGE,
-    IMAGE_EDGE,
-    NO_BAND,
-    SATURATED,
-    TWO_PULSES,
-    DetectionParams,
-    GlintDetections,
-    GlintDetector,
-    detect_glints,
-)
+from estimator.glints import BLENDED, CUT_BY_BAND_EDGE, IMAGE_EDGE, NO_BAND, SATURATED, TWO_PULSES, DetectionParams, GlintDetections, GlintDetector, detect_glints
 from estimator.scene import load_scene
 from scet_render.simulate import ground_truth_glints
 
@@ -425,8 +414,8 @@ def assert_same_detections(a: GlintDetections, b: GlintDetections):
 def pixel_path(monkeypatch):
     """detect_glints with every component measured pixel by pixel in numpy (no compiled
     kernels, no patch stacks): the reference the faster paths are held to."""
-    import estimator.glint_kernels as glint_kernels
-    import estimator.glint_spots as glint_spots
+    import estimator.glints.kernels as glint_kernels
+    import estimator.glints.spots as glint_spots
 
     def detect(*args, **kwargs):
         with monkeypatch.context() as m:
@@ -441,8 +430,8 @@ def fast_path(request, monkeypatch):
     """The two fast implementations of steps 2-4: the Numba kernels, and the numpy path that
     runs without Numba (spots whose grown box fits in ``_PATCH_PX`` on a stack of patches, the
     larger ones pixel by pixel; with 7 px, the larger spots of a frame go pixel by pixel)."""
-    import estimator.glint_kernels as glint_kernels
-    import estimator.glint_spots as glint_spots
+    import estimator.glints.kernels as glint_kernels
+    import estimator.glints.spots as glint_spots
 
     if request.param == "compiled":
         pytest.importorskip("numba")
@@ -626,8 +615,8 @@ def test_a_tight_window_measures_like_the_whole_frame(setup, sequence, pad):
     """A window a few pixels around the glints, its edges inside the top-hat line's reach
     (10 px) of the outermost ones: the window's top-hat, threshold, timing and centroids are
     the whole frame's."""
-    from estimator.glint_noise import _NoiseModel
-    from estimator.glints import _detect
+    from estimator.glints.noise import _NoiseModel
+    from estimator.glints.detector import _detect
     f, frame, g = sequence[2]
     noise = _NoiseModel.of_frame(frame, DetectionParams())
     whole = _detect(frame, setup, f, DetectionParams(), noise)[0]
@@ -670,7 +659,7 @@ def test_stream_checks_frames_like_detect_glints(setup):
 def test_noise_model_counted_and_sorted_agree():
     """Integer frames count, float frames sort: the same bins (level ties included), the same
     medians, as a brute-force median per bin; top-hat values beyond the counting cap too."""
-    from estimator.glint_noise import _bin_medians_counted, _bin_medians_sorted, _NoiseModel
+    from estimator.glints.noise import _bin_medians_counted, _bin_medians_sorted, _NoiseModel
 
     rng = np.random.default_rng(4)
     params = DetectionParams()
@@ -697,7 +686,7 @@ def test_noise_model_counted_and_sorted_agree():
 
 @pytest.mark.parametrize("shape", [(480, 640), (7, 13), (1, 8), (3, 5)])
 def test_flat_true_is_flatnonzero(shape):
-    from estimator.glint_noise import _flat_true
+    from estimator.glints.noise import _flat_true
 
     rng = np.random.default_rng(shape[1])
     for fill in (0.0, 0.001, 0.3, 1.0):
@@ -752,8 +741,8 @@ def rendered():
     """One paper_sim frame rendered by Mitsuba (BandedRenderer, every band at its strobe
     instant; conductor cornea: exact glints at low spp) through the OV5647 sensor model."""
     pytest.importorskip("mitsuba", reason="Mitsuba 3 is not installed (extra 'render')")
-    rolling_shutter = pytest.importorskip("scet_render.rolling_shutter")
-    from scet_render.sensor import SensorModel
+    rolling_shutter = pytest.importorskip("scet_render.render.rolling_shutter")
+    from scet_render.render import SensorModel
 
     class Fixation:
         def angles_at(self, t):

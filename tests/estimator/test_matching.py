@@ -19,14 +19,7 @@ import pytest
 
 from estimator.banding import band_layout
 from estimator.glints import detect_glints
-from estimator.matching import (
-    NO_HYPOTHESIS,
-    OK,
-    TOO_FEW_GLINTS,
-    GlintMatcher,
-    MatchParams,
-    match_glints,
-)
+from estimator.matching import NO_HYPOTHESIS, OK, TOO_FEW_GLINTS, GlintMatcher, MatchParams, match_glints
 from estimator.scene import load_scene
 from scet_render.simulate import ground_truth_glints, simulate_glints
 from tests.estimator.test_glints import banded_frame

@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from scipy.optimize import minimize
 
-from estimator.camera import Camera
+from estimator.geometry import Camera
 from estimator.eye import gaze_direction
 from estimator.geometry import look_at_rotation
-from estimator.projection import (project_glints, reflect_pixel_rays, reflection_points,
-                                  reflection_quartic)
+from estimator.geometry import project_glints, reflect_pixel_rays, reflection_points
+from estimator.geometry.roots import reflection_quartic
 from estimator.scene import load_scene
 from tests.tolerances import TOL
 

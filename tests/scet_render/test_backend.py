@@ -8,8 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from scet_render.backend import (LLVM_ENV, VARIANT_ENV, choose_variant, find_libllvm,
-                                 is_jit_variant, llvm_version)
+from scet_render.render import LLVM_ENV, VARIANT_ENV, choose_variant, find_libllvm, is_jit_variant, llvm_version
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -54,7 +53,7 @@ def test_environment_variable_wins_when_usable(tmp_path, caplog):
     globs = [str(tmp_path / "libLLVM*.so*")]
     assert find_libllvm(globs, env={LLVM_ENV: str(pinned)}) == pinned
     old = _touch(tmp_path / "old" / "libLLVM-15.so")
-    with caplog.at_level(logging.WARNING, logger="scet_render.backend"):
+    with caplog.at_level(logging.WARNING, logger="scet_render.render.backend"):
         # An LLVM 15 (crashes Dr.Jit) or a missing file is ignored, with a warning.
         assert find_libllvm(globs, env={LLVM_ENV: str(old)}) == newest
         assert find_libllvm(globs, env={LLVM_ENV: str(tmp_path / "gone.so")}) == newest
@@ -97,7 +96,7 @@ def test_activate_exports_the_library_before_drjit_loads_it():
         pytest.skip("no libLLVM >= 16 on this machine: the LLVM variant cannot be activated")
     env = {k: v for k, v in os.environ.items() if k not in (LLVM_ENV, VARIANT_ENV)}
     code = ("import os, sys\n"
-            "from scet_render.backend import activate\n"
+            "from scet_render.render.backend import activate\n"
             "assert 'drjit' not in sys.modules  # the analytic path never imports it\n"
             "mi = activate()\n"
             "print(mi.variant(), os.environ['DRJIT_LIBLLVM_PATH'])\n")
@@ -112,12 +111,12 @@ def test_scalar_fallback_logs_one_notice():
     env = {k: v for k, v in os.environ.items() if k not in (LLVM_ENV, VARIANT_ENV)}
     code = ("import logging\n"
             "logging.basicConfig(level=logging.WARNING, format='%(name)s|%(message)s')\n"
-            "import scet_render.backend as b\n"
+            "import scet_render.render.backend as b\n"
             "b.DEFAULT_LLVM_GLOBS = ()\n"
             "b.gpu_available = lambda: False\n"
             "print(b.activate().variant())\n")
     out = _run(code, env)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == ["scalar_rgb"]
-    notices = [line for line in out.stderr.splitlines() if line.startswith("scet_render.backend|")]
+    notices = [line for line in out.stderr.splitlines() if line.startswith("scet_render.render.backend|")]
     assert len(notices) == 1 and "scalar_rgb" in notices[0]

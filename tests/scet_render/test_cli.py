@@ -58,7 +58,7 @@ def test_demo_runs_on_default_scene(capsys, tmp_path):
 
 def test_export_mitsuba_writes_a_scene_mitsuba_loads(capsys, tmp_path):
     mi = pytest.importorskip("mitsuba")
-    from scet_render.backend import activate
+    from scet_render.render import activate
 
     activate()
     assert main(["export-mitsuba", "paper_sim", "--out", str(tmp_path), "--yaw-deg", "5", "--spp", "4"]) == 0

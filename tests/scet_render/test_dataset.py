@@ -1,6 +1,6 @@
 """Rendered datasets: layout, file contents, labels against the banding model, resume, refusal.
 
-Tests that render use the real Mitsuba renderer (``scet_render.rolling_shutter``) on a
+Tests that render use the real Mitsuba renderer (``scet_render.render.rolling_shutter``) on a
 half-resolution copy of the paper's setup (320 x 240, S = 393 lines: the same line time
 fraction, so the bands keep their timing) at 2 spp; they skip themselves when the renderer or
 Mitsuba is missing.
@@ -20,13 +20,12 @@ import numpy as np
 import pytest
 
 from estimator.banding import row_pulse_weights
-from estimator.camera import Camera
+from estimator.geometry import Camera
 from estimator.scene import load_scene
-from scet_render.dataset import (FORMAT, LABELS_NAME, TRAJECTORY_KINDS, VERSION, DatasetError,
-                                 DatasetMismatchError, dataset_trajectory, frame_labels,
-                                 iter_labels, read_exr, read_manifest, render_dataset,
-                                 setup_fingerprint, strobe_instant)
-from scet_render.sensor import SensorModel
+from scet_render.dataset import FORMAT, LABELS_NAME, TRAJECTORY_KINDS, VERSION, DatasetError, DatasetMismatchError, dataset_trajectory, frame_labels, iter_labels, read_exr, render_dataset
+from estimator.banding import strobe_instant
+from scet_render.dataset.manifest import read_manifest, setup_fingerprint
+from scet_render.render import SensorModel
 from scet_render.simulate import ground_truth_glints
 
 FRAMES = 3
@@ -181,8 +180,8 @@ def test_setup_fingerprint_sees_changes_made_in_code(paper, small):
 @pytest.fixture(scope="module")
 def renderer_available():
     pytest.importorskip("mitsuba", reason="Mitsuba 3 is needed to render datasets")
-    pytest.importorskip("scet_render.rolling_shutter",
-                        reason="the Mitsuba renderer (scet_render.rolling_shutter) is not there")
+    pytest.importorskip("scet_render.render.rolling_shutter",
+                        reason="the Mitsuba renderer (scet_render.render.rolling_shutter) is not there")
 
 
 @pytest.fixture(scope="module")
@@ -242,7 +241,7 @@ def test_exr_holds_float32_radiance_and_the_strobe_header(dataset, small):
 
 def test_exr_radiance_is_the_renderer_output_bit_for_bit(dataset, small):
     """A fresh renderer reproduces a stored frame: frames depend on (seed, frame) only."""
-    from scet_render.dataset import _make_renderer
+    from scet_render.dataset.writer import _make_renderer
 
     renderer = _make_renderer(small, spp=SPP, variant=read_manifest(dataset)["render"]["variant"],
                               cornea="dielectric", seed=SEED)

@@ -1,7 +1,7 @@
 """The Mitsuba scene of a Setup: camera conversion, eye parts and poses, eyelids, export.
 
 Tests that need Mitsuba skip themselves without it; they run on whatever variant
-:func:`scet_render.backend.activate` picks (``SCET_MITSUBA_VARIANT=scalar_rgb`` forces scalar).
+:func:`scet_render.render.backend.activate` picks (``SCET_MITSUBA_VARIANT=scalar_rgb`` forces scalar).
 """
 
 import dataclasses
@@ -16,13 +16,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.camera import Camera
+from estimator.geometry import Camera
 from estimator.eye import gaze_direction
 from estimator.geometry import look_at_rotation
 from estimator.scene import load_scene
-from scet_render.scene import (SCENE_UNITS_PER_M, EyeScene, SceneOptions, cornea_mesh,
-                               describe_scene, eye_layout, export_mitsuba, sclera_opacity,
-                               sensor_dict)
+from scet_render.render import SCENE_UNITS_PER_M, EyeScene, SceneOptions, cornea_mesh, describe_scene, eye_layout, export_mitsuba, sclera_opacity, sensor_dict
 
 
 @dataclass(frozen=True)
@@ -42,7 +40,7 @@ TOL = Tol()
 @pytest.fixture(scope="module")
 def mi():
     pytest.importorskip("mitsuba")
-    from scet_render.backend import activate
+    from scet_render.render import activate
 
     return activate()
 
@@ -255,7 +253,7 @@ def test_export_renders_with_the_mitsuba_command(setup, tmp_path):
     exe = shutil.which("mitsuba") or shutil.which("mitsuba", path=str(Path(sys.executable).parent))
     if exe is None:
         pytest.skip("the mitsuba command is not installed")
-    from scet_render.backend import LLVM_ENV, choose_variant
+    from scet_render.render import LLVM_ENV, choose_variant
 
     choice = choose_variant()
     env = dict(os.environ)

@@ -2,7 +2,7 @@
 the fast band renderer against the full-frame reference, determinism, no recompilation.
 
 Frame planning is tested without Mitsuba. Render tests skip without it, and run on whatever
-variant :func:`scet_render.backend.activate` picks; under ``scalar_rgb``
+variant :func:`scet_render.render.backend.activate` picks; under ``scalar_rgb``
 (``SCET_MITSUBA_VARIANT=scalar_rgb``) the full-size banded frames are skipped, being ~10x slower.
 """
 
@@ -13,12 +13,12 @@ import numpy as np
 import pytest
 
 from estimator.banding import band_layout, row_pulse_weights
-from estimator.camera import Camera
+from estimator.geometry import Camera
 from estimator.eye import eye_rotation_matrix
 from estimator.scene import load_scene
 from estimator.setup import Strobe
 from scet_render.motion import fixation_sequence
-from scet_render.rolling_shutter import BandedRenderer, FrameRender, plan_frame
+from scet_render.render import BandedRenderer, FrameRender, plan_frame
 from scet_render.simulate import ground_truth_glints
 
 
@@ -89,7 +89,7 @@ def _saccade_frame(setup, traj) -> int:
 @pytest.fixture(scope="module")
 def mi():
     pytest.importorskip("mitsuba")
-    from scet_render.backend import activate
+    from scet_render.render import activate
 
     return activate()
 
@@ -307,7 +307,7 @@ def test_rows_collect_their_pulse_fraction(still_frames):
 
 @pytest.mark.slow
 def test_mesh_cornea_glints_land_on_the_closed_form(mi, paper):
-    from scet_render.scene import SceneOptions
+    from scet_render.render import SceneOptions
 
     r = BandedRenderer(paper, cornea="conductor", spp=16, ambient=0.0,
                        options=SceneOptions(cornea_geometry="mesh"))

@@ -14,8 +14,8 @@ import pytest
 from estimator.calibration import Calibration
 from estimator.scene import load_scene
 from estimator.folders import read_samples_csv
-from scet_render.validate import (QUICK, ValidationConfig, calibration_setup, run_validation,
-                                  strobe_setup)
+from estimator.banding import calibration_setup, strobe_setup
+from scet_render.validate import QUICK, ValidationConfig, run_validation
 
 pytest.importorskip("mitsuba", reason="end-to-end validation renders with Mitsuba 3")
 
@@ -106,7 +106,7 @@ def test_an_identity_is_the_nearest_labelled_glint():
     one nearer to another light's glint is not."""
     from types import SimpleNamespace
 
-    from scet_render.validate import _identities
+    from scet_render.validate.run import _identities
 
     label = SimpleNamespace(glints_px=np.array([[100.0, 50.0], [106.0, 50.0], [np.nan, np.nan]]))
     det = np.array([[102.0, 50.0],   # light 0, 2 px off, nearest to light 0: right

@@ -1,0 +1,23 @@
+"""Calibration (Sec. 2.4-2.5): lighting pose and corneal radius, eye centre and orbit
+radius, the gaze mappings, and the calibration file.
+
+Modules: ``lighting``, ``orbit``, ``mapping`` (Eq. (1) and the second-order polynomials),
+``result`` (:class:`Calibration`, versioned JSON).
+"""
+
+from .lighting import (
+    CORNEA_RADIUS_INIT_M, CORNEA_RADIUS_SD_M, CORNEA_RADIUS_BOUNDS_M, POSE_BOUND_M,
+    POSE_BOUND_RAD, pose_correction, corrected_lights, LightingFit,
+    calibrate_lighting_per_frame, calibrate_lighting_joint, calibrate_joint
+)
+from .mapping import MAPPING_TERMS, RANK_RTOL, GazeMapping, fit_gaze_mapping, distance_reading
+from .orbit import ORBIT_RADIUS_BOUNDS_M, OrbitFit, orbit_law_of_sines, orbit_sphere_fit
+from .result import Calibration
+
+__all__ = [
+    "CORNEA_RADIUS_INIT_M", "CORNEA_RADIUS_SD_M", "CORNEA_RADIUS_BOUNDS_M", "POSE_BOUND_M",
+    "POSE_BOUND_RAD", "pose_correction", "corrected_lights", "LightingFit",
+    "calibrate_lighting_per_frame", "calibrate_lighting_joint", "calibrate_joint",
+    "MAPPING_TERMS", "RANK_RTOL", "GazeMapping", "fit_gaze_mapping", "distance_reading",
+    "ORBIT_RADIUS_BOUNDS_M", "OrbitFit", "orbit_law_of_sines", "orbit_sphere_fit", "Calibration"
+]

@@ -1,0 +1,148 @@
+"""System calibration (Sec. 2.4 and 3.1 of the SCET paper) and gaze mappings (Sec. 2.2.2, 3.3.1).
+
+Four steps, each in two flavours: the paper's as described, and ours.
+
+1. **Lighting pose and corneal radius** from frames of the eye fixating calibration targets,
+   lit by a rigid light group of known shape (the 6x6 grid of Sec. 3.1). Unknowns: cornea
+   centre c_c, radius r_c and the group's rigid pose (rotation vector about the nominal
+   centroid plus translation). The paper fits all ten per frame
+   (:func:`calibrate_lighting_per_frame`); that problem is badly conditioned (pose and centre
+   trade off), so ours fits all frames at once with one r_c and one pose shared and a centre per
+   frame (:func:`calibrate_lighting_joint`). The result is a world-frame :class:`RigidPose`
+   correction; since every light group is mounted on the same frame, the same correction moves
+   any of them (:func:`corrected_lights`): the grid's calibrates the arc's.
+2. **Eye centre c_e and orbit radius r_co** from the cornea centres of the calibration frames:
+   the paper's law of sines (:func:`orbit_law_of_sines`) and its baseline, the least-squares
+   sphere (:func:`orbit_sphere_fit`, Ahn et al. 2001).
+3. **Ours, all at once**: :func:`calibrate_joint` fits r_c, the lighting pose, c_e and r_co to
+   the glints of every calibration frame, the cornea centre of frame i being
+   c_e + r_co d_i with d_i the direction from c_e to the known target (or free Fick angles).
+4. **Gaze mappings** from cornea centre (and the distance reading d_a) to screen point:
+   :func:`fit_gaze_mapping` -> :class:`GazeMapping`.
+
+Everything ends up in a :class:`Calibration`, written as versioned JSON.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..geometry import RigidPose
+from ..formats import CALIBRATION_FORMAT, CALIBRATION_VERSION, check_format
+from .mapping import GazeMapping
+from .lighting import CORNEA_RADIUS_INIT_M, LightingFit, corrected_lights
+from .orbit import OrbitFit
+
+
+
+
+# --------------------------------------------------------------------------------------------
+# Everything together
+
+
+@dataclass(frozen=True, slots=True)
+class Calibration:
+    """Everything the gaze estimators need beyond the nominal setup.
+
+    Attributes
+    ----------
+    lighting_correction : RigidPose
+        World-frame correction of the whole light rig (identity = nominal).
+    cornea_radius_m : float
+    eye_center_m : (3,) float
+        c_e; NaN when not calibrated (polynomial gaze does not need it).
+    orbit_radius_m : float
+        r_co; NaN when not calibrated.
+    mappings : dict[str, GazeMapping]
+        Named gaze mappings, e.g. ``{"eq1_9": ..., "eq1_25": ..., "quadratic_25": ...}``.
+    methods : dict[str, str]
+        How each part was obtained (free text, e.g. ``{"lighting": "joint"}``).
+    """
+
+    lighting_correction: RigidPose = field(default_factory=RigidPose)
+    cornea_radius_m: float = CORNEA_RADIUS_INIT_M
+    eye_center_m: np.ndarray = field(default_factory=lambda: np.full(3, np.nan))
+    orbit_radius_m: float = float("nan")
+    mappings: dict = field(default_factory=dict)
+    methods: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        ce = np.asarray(self.eye_center_m, dtype=np.float64).reshape(3).copy()
+        ce.setflags(write=False)
+        object.__setattr__(self, "eye_center_m", ce)
+        object.__setattr__(self, "cornea_radius_m", float(self.cornea_radius_m))
+        object.__setattr__(self, "orbit_radius_m", float(self.orbit_radius_m))
+        object.__setattr__(self, "mappings", dict(self.mappings))
+        object.__setattr__(self, "methods", {str(k): str(v) for k, v in self.methods.items()})
+        for name, m in self.mappings.items():
+            if not isinstance(m, GazeMapping):
+                raise ValueError(f"Calibration.mappings[{name!r}] must be a GazeMapping, got {type(m).__name__}")
+
+    @classmethod
+    def ground_truth(cls, setup, **kwargs) -> "Calibration":
+        """The calibration a perfect procedure would give for ``setup`` (nominal lighting)."""
+        return cls(RigidPose(), setup.eye.cornea_radius_m, setup.eye.rotation_center_m,
+                   setup.eye.cornea_offset_m, methods={"all": "ground_truth"}, **kwargs)
+
+    @classmethod
+    def from_fits(cls, lighting: LightingFit, orbit: OrbitFit | None = None,
+                  mappings: dict | None = None) -> "Calibration":
+        """A calibration from the results of the fits above (``orbit`` only for geometric gaze)."""
+        methods = {"lighting": lighting.method}
+        if orbit is not None:
+            methods["orbit"] = orbit.method
+        return cls(lighting.correction, lighting.cornea_radius_m,
+                   np.full(3, np.nan) if orbit is None else orbit.eye_center_m,
+                   float("nan") if orbit is None else orbit.orbit_radius_m, mappings or {}, methods)
+
+    @property
+    def has_orbit(self) -> bool:
+        return bool(np.isfinite(self.eye_center_m).all() and np.isfinite(self.orbit_radius_m))
+
+    def lights_world_m(self, nominal_lights_m) -> np.ndarray:
+        """(n, 3) calibrated positions of the nominal lights."""
+        return corrected_lights(self.lighting_correction, nominal_lights_m)
+
+    def with_mappings(self, **mappings: GazeMapping) -> "Calibration":
+        return Calibration(self.lighting_correction, self.cornea_radius_m, self.eye_center_m,
+                           self.orbit_radius_m, {**self.mappings, **mappings}, self.methods)
+
+    def to_dict(self) -> dict:
+        finite = self.has_orbit
+        return {
+            "format": CALIBRATION_FORMAT, "version": CALIBRATION_VERSION,
+            "lighting_correction": {"rotation": self.lighting_correction.rotation.tolist(),
+                                    "translation_m": self.lighting_correction.translation_m.tolist()},
+            "cornea_radius_m": self.cornea_radius_m,
+            "eye_center_m": self.eye_center_m.tolist() if finite else None,
+            "orbit_radius_m": self.orbit_radius_m if finite else None,
+            "mappings": {k: v.to_dict() for k, v in self.mappings.items()},
+            "methods": dict(self.methods),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "Calibration":
+        check_format(data, "calibration", CALIBRATION_FORMAT, CALIBRATION_VERSION)
+        try:
+            lc = data["lighting_correction"]
+            ce, r_co = data["eye_center_m"], data["orbit_radius_m"]
+            return cls(RigidPose(lc["rotation"], lc["translation_m"]), data["cornea_radius_m"],
+                       np.full(3, np.nan) if ce is None else ce, float("nan") if r_co is None else r_co,
+                       {k: GazeMapping.from_dict(v) for k, v in data["mappings"].items()},
+                       data.get("methods", {}))
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"{CALIBRATION_FORMAT}: malformed document ({exc!r})") from None
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=1)
+
+    @classmethod
+    def from_json(cls, text: str) -> "Calibration":
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{CALIBRATION_FORMAT}: not JSON ({exc})") from None
+        return cls.from_dict(data)

@@ -1,0 +1,14 @@
+"""Cornea fits (Sec. 2.2): the cornea centre, radius and lighting pose from glints.
+
+Modules: ``problem`` (:class:`FitProblem`, :class:`CorneaFit`, reason codes), ``fit``
+(:func:`fit_cornea`, :func:`fit_covariance`), ``solve`` (the batched Levenberg-Marquardt and
+the paper's TRF).
+"""
+
+from .fit import fit_cornea, fit_covariance
+from .problem import MODELS, OK, TOO_FEW_GLINTS, NOT_CONVERGED, NON_FINITE, CorneaFit, FitProblem
+
+__all__ = [
+    "fit_cornea", "fit_covariance", "MODELS", "OK", "TOO_FEW_GLINTS", "NOT_CONVERGED",
+    "NON_FINITE", "CorneaFit", "FitProblem"
+]

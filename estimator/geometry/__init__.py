@@ -1,0 +1,23 @@
+"""Geometry: rigid poses and rotations, the pinhole camera, the closed-form glint
+projection of a spherical cornea (:func:`project_glints`), its root finders and Jacobians,
+and the packed rows the cornea fits sum.
+
+Modules: ``rigid`` (poses, rotations, point checks), ``camera`` (:class:`Camera`),
+``reflection`` (:func:`project_glints`, :func:`reflection_points`, :func:`reflect_pixel_rays`),
+``roots`` (the reflection equation's solvers), ``jacobians`` (:func:`glint_jacobians`),
+``fit_rows`` (the centre and orbit fits' packed rows).
+"""
+
+from .camera import Camera
+from .jacobians import glint_jacobians
+from .reflection import reflection_points, project_glints, reflect_pixel_rays
+from .rigid import (
+    as_points, normalize, rotation_matrix, rotation_from_vector, rotation_to_vector,
+    look_at_rotation, RigidPose, rotations_from_vectors
+)
+
+__all__ = [
+    "Camera", "glint_jacobians", "reflection_points", "project_glints", "reflect_pixel_rays",
+    "as_points", "normalize", "rotation_matrix", "rotation_from_vector", "rotation_to_vector",
+    "look_at_rotation", "RigidPose", "rotations_from_vectors"
+]

@@ -1,0 +1,21 @@
+"""Glint detection in banded frames: sub-pixel centroids, the strobe and time of each
+glint, flags.
+
+Modules: ``params`` (:class:`DetectionParams`, :class:`GlintDetections`, flags), ``noise``
+(the frame's noise model), ``spots`` (spot measurement and band timing), ``kernels`` (the
+same steps compiled with Numba, optional), ``detector`` (:func:`detect_glints`), ``sequence``
+(:class:`GlintDetector` over a stream).
+"""
+
+from .detector import detect_glints
+from .params import (
+    SATURATED, CUT_BY_BAND_EDGE, TWO_PULSES, IMAGE_EDGE, NO_BAND, BLENDED, FLAG_NAMES,
+    DetectionParams, GlintDetections
+)
+from .sequence import GlintDetector, window_margin_px
+
+__all__ = [
+    "detect_glints", "SATURATED", "CUT_BY_BAND_EDGE", "TWO_PULSES", "IMAGE_EDGE", "NO_BAND",
+    "BLENDED", "FLAG_NAMES", "DetectionParams", "GlintDetections", "GlintDetector",
+    "window_margin_px"
+]

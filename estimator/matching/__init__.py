@@ -1,0 +1,16 @@
+"""Glint identities: which light made each glint of a band.
+
+Modules: ``params`` (:class:`MatchParams`, :class:`GlintMatch`), ``model`` (the calibrated
+eye, priors, hypotheses), ``matcher`` (:class:`GlintMatcher`).
+"""
+
+from .matcher import GlintMatcher, match_glints
+from .model import calibrated_eye
+from .params import (
+    OK, TOO_FEW_GLINTS, NO_HYPOTHESIS, FIT_FAILED, AMBIGUOUS, MatchParams, GlintMatch
+)
+
+__all__ = [
+    "GlintMatcher", "match_glints", "calibrated_eye", "OK", "TOO_FEW_GLINTS", "NO_HYPOTHESIS",
+    "FIT_FAILED", "AMBIGUOUS", "MatchParams", "GlintMatch"
+]

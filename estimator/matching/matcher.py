@@ -1,0 +1,596 @@
+"""Glint identification: which light made which glint, one band (one gaze sample) at a time.
+
+The SCET paper leaves this open (Sec. 5.1). A band shows only the glints whose rows its pulse
+lights (Sec. 2.3): a contiguous stretch of each arc's chain of glints, with some glints missing
+(dropouts, the limbus) and some blobs that are not glints (sclera and lid reflections that
+passed the detector). Identification is model-based:
+
+1. Hypotheses. Without a prior (cold start, lost track): a coarse search. The glints of every
+   light are predicted once per matcher on a grid of eye rotations (``grid_step_deg``) over the
+   orbit (Sec. 2.2.1: the cornea centre on a sphere of radius r_co about the eye centre); each
+   grid pose is scored against the band's detections (the score below, at the coarse gate) and
+   the best local minima are kept. With a prior (the previous sample's rotation): the prior,
+   and the best local minima of the grid within ``prior_window_deg`` of it.
+2. Refinement, per hypothesis and batched over them: predict the glints with the closed-form
+   projection (:func:`estimator.geometry.project_glints`, on the corneal cap), keep as
+   candidates only those inside the band's rows, assign detections to candidates with
+   ``scipy.optimize.linear_sum_assignment`` on squared distances with a gate (each detection
+   may stay unmatched at the cost of the gate), refit the cornea
+   (:func:`estimator.cornea.fit_cornea`, ``"orbit"`` or ``"center"``), re-predict, re-assign,
+   until the assignment no longer changes. The gate starts wide (the hypothesis is coarse) and
+   closes to ``gate_px`` once the fit has locked on.
+3. The arc's layout. The lights' order along each arc is preserved in the image (the
+   reflection is continuous), which is used twice. (a) The classic wrong answer is the chain
+   shifted by a light or two along itself (the glints are near-evenly spaced): those
+   identities are refined explicitly, as hypotheses whose first assignment is the leader's
+   shifted by ±1 and ±2 lights along their own arcs. (b) Consecutive matched lights of one arc
+   must be met in the same direction by their detections as by their predictions; a pair that
+   is not holds a false match (a blob taken for a missing glint): the worse-fitting one is
+   dropped and the fit repeated.
+4. Choice. Each refined hypothesis is scored as a negative log-likelihood,
+   S = Σ_matched r² / σ² + ``unmatched_cost`` per unmatched detection + ``missing_cost`` per
+   predicted glint well inside the band with no detection, plus, with a prior, the squared
+   distance from it in units of ``prior_sigma_deg``. The lowest S wins; a winner less than
+   ``min_margin`` ahead of a rival with other identities is "ambiguous", and, like a band with
+   too few matches, returns no identities (a NaN sample with a reason, not a guess).
+5. Confidence of each match: the product of (a) 1 - r / gate (the residual after the refit),
+   (b) the margin to the second-best assignment of that detection, min(1, (d₂ - r) / gate)
+   with d₂ the distance to the nearest other candidate or competing detection, and (c) the
+   margin to the runner-up hypothesis, tanh((S₂ - S₁) / 4) (their likelihood-ratio odds
+   mapped to [0, 1]).
+
+Lights whose glints nearly coincide (in ``paper_sim_doubled`` light i and light 40 + i, i < 8,
+sit within 1 mm of each other) are indistinguishable: either identity may be returned.
+Everything is in pixels (image) and SI units (geometry); angles are Fick (yaw, pitch) in rad.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from ..calibration import Calibration
+from ..cornea import FitProblem, fit_cornea
+from ..eye import fick_angles, gaze_direction
+from ..geometry import project_glints
+from ..setup import Setup
+from .model import _Hypothesis, _Prior, calibrated_eye
+from .params import AMBIGUOUS, FIT_FAILED, NO_HYPOTHESIS, OK, TOO_FEW_GLINTS, GlintMatch, MatchParams
+
+
+
+class GlintMatcher:
+    """Identifies the glints of bands for one setup (camera, eye, lights).
+
+    Building one predicts every light's glint over the coarse grid of eye rotations (about
+    0.1 s for 40 lights); keep it for a whole sequence.
+
+    Parameters
+    ----------
+    setup : Setup
+        Camera, eye (rotation centre, cornea offset and radius, limbus) and lights.
+    params : MatchParams
+    calibration : Calibration, optional
+        Predict the glints from the calibrated geometry: the corrected lighting pose, r_c and,
+        where calibrated, c_e and r_co (:func:`calibrated_eye`). On the prototype the nominal
+        lighting pose is off by millimetres, a pixel or more of every predicted glint. Default:
+        the setup's nominal lights and eye.
+    """
+
+    def __init__(self, setup: Setup, params: MatchParams = MatchParams(), *,
+                 calibration: Calibration | None = None):
+        self.setup = setup
+        self.params = params
+        self.eye = calibrated_eye(setup.eye, calibration)
+        eye = self.eye
+        nominal = np.asarray(setup.lights_world_m, dtype=np.float64)
+        self.lights_world_m = (nominal if calibration is None
+                               else calibration.lights_world_m(nominal))
+        self.group = np.asarray(setup.lights.group_index)
+        self.problem = FitProblem(setup.camera, self.lights_world_m, eye.cornea_radius_m,
+                                  eye.rotation_center_m, eye.cornea_offset_m)
+        yaw = np.arange(-params.grid_yaw_deg, params.grid_yaw_deg + 1e-9, params.grid_step_deg)
+        pitch = np.arange(-params.grid_pitch_deg, params.grid_pitch_deg + 1e-9,
+                          params.grid_step_deg)
+        Y, P = np.meshgrid(np.radians(yaw), np.radians(pitch), indexing="ij")
+        self._grid_shape = Y.shape
+        self.grid_angles_rad = np.stack([Y.ravel(), P.ravel()], axis=-1)
+        self.grid_glints_px, self.grid_visible = self.predict(self.grid_angles_rad)
+
+    # ----------------------------------------------------------------------- prediction
+
+    def predict(self, angles_rad) -> tuple[np.ndarray, np.ndarray]:
+        """Glints of every light for eye rotations on the orbit.
+
+        Parameters
+        ----------
+        angles_rad : (..., 2) float
+            Fick (yaw, pitch).
+
+        Returns
+        -------
+        glints_px : (..., n, 2) float
+        visible : (..., n) bool
+            On the corneal cap, seen and inside the image.
+        """
+        a = np.asarray(angles_rad, dtype=np.float64)
+        eye = self.eye
+        center = eye.cornea_center(a[..., 0], a[..., 1])
+        axis = gaze_direction(a[..., 0], a[..., 1])
+        return project_glints(self.setup.camera, center, eye.cornea_radius_m, self.lights_world_m,
+                              cornea_axis=axis, cap_cos_min=eye.cap_cos_min)
+
+    def _predict_x(self, x):
+        """Glints at fit parameters x (angles for "orbit", centre for "center")."""
+        if self.params.model == "orbit":
+            return self.predict(x)
+        eye = self.eye
+        axis = np.asarray(x, dtype=np.float64) - eye.rotation_center_m
+        axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+        return project_glints(self.setup.camera, x, eye.cornea_radius_m, self.lights_world_m,
+                              cornea_axis=axis, cap_cos_min=eye.cap_cos_min)
+
+    def _x_from_angles(self, angles):
+        if self.params.model == "orbit":
+            return np.asarray(angles, dtype=np.float64)
+        return self.eye.cornea_center(angles[0], angles[1])
+
+    def _angles_center(self, x):
+        eye = self.eye
+        if self.params.model == "orbit":
+            return np.asarray(x, dtype=np.float64), eye.cornea_center(x[0], x[1])
+        yaw, pitch = fick_angles(x - eye.rotation_center_m)
+        return np.array([float(yaw), float(pitch)]), np.asarray(x, dtype=np.float64)
+
+    # ----------------------------------------------------------------------- matching
+
+    def match(self, glints_px, rows=None, prior_angles_rad=None) -> GlintMatch:
+        """Identify the detections of one band.
+
+        Parameters
+        ----------
+        glints_px : (k, 2) float
+            Detected glints of the band (pixel-centre convention), spurious blobs included.
+        rows : (float, float), optional
+            First and last image row the band's pulse lights (e.g. ``Band.first_row`` and
+            ``Band.last_row`` of :func:`estimator.banding.band_layout`): only glints predicted
+            within them are candidates. Default: the whole image.
+        prior_angles_rad : (2,) float, optional
+            Eye rotation (Fick yaw, pitch) of the previous sample. Without it: coarse search
+            over the whole grid.
+
+        Returns
+        -------
+        GlintMatch
+        """
+        g, lo, hi = self._inputs(glints_px, rows)
+        k = g.shape[0]
+        if k == 0:
+            return self._failure(0, TOO_FEW_GLINTS)
+        p = self.params
+        from_prior = None
+        if prior_angles_rad is not None:
+            prior = np.asarray(prior_angles_rad, dtype=np.float64).reshape(2)
+            if not np.isfinite(prior).all():
+                raise ValueError("prior_angles_rad must be finite")
+            # The prior, and the best grid poses near it: a prior a few pixels off can lock
+            # onto the arc's chain shifted by one light, which only a rival start exposes.
+            near = np.abs(self.grid_angles_rad - prior).max(axis=1) <= math.radians(
+                p.prior_window_deg)
+            starts = [prior] + (self._coarse(g, lo, hi, near, p.prior_hypotheses)
+                                if p.prior_hypotheses else [])
+            weight = np.eye(2) / math.radians(p.prior_sigma_deg) ** 2
+            from_prior = self._choose(g, lo, hi, starts, p.prior_gate_px, p.min_matches_prior,
+                                      _Prior(prior, weight))
+            if from_prior is not None and from_prior.ok:
+                n = int(from_prior.matched.sum())
+                if n >= p.min_matches or n >= 0.5 * k:
+                    return from_prior
+        # No prior, or one that explains too little (stale after a blink or a saccade, or a
+        # band with few glints among clutter): the coarse search, and the better of the two.
+        starts = self._coarse(g, lo, hi, None, p.hypotheses)
+        cold = self._choose(g, lo, hi, starts, p.coarse_gate_px, p.min_matches)
+        results = [r for r in (from_prior, cold) if r is not None]
+        good = [r for r in results if r.ok]
+        if good:
+            return min(good, key=lambda r: r.score)
+        return results[-1] if results else self._failure(k, NO_HYPOTHESIS)
+
+    def match_near(self, glints_px, prior_angles_rad, prior_cov_rad2, rows=None, *,
+                   min_matches: int = 1) -> GlintMatch:
+        """Identify the few detections of a sparse band from a prior alone (no coarse search).
+
+        A band with one or two glints cannot be identified cold (the chain of an arc shifted
+        by a light fits them as well), but it can from a prior on the eye rotation that is
+        tight compared with the angular step between neighbouring lights (~2° in
+        ``paper_sim``). The first assignment is gated at ``gate_px`` plus three prior standard
+        deviations of each predicted glint; every hypothesis (the prior's assignment and that
+        assignment shifted by ±1, ±2 lights along the arcs) is refitted with the prior (the
+        maximum a posteriori rotation) and scored with its squared Mahalanobis distance from
+        the prior mean; a runner-up within ``min_margin`` makes the band "ambiguous". Only the
+        ``"orbit"`` model carries an angle prior.
+
+        Parameters
+        ----------
+        glints_px : (k, 2) float
+        prior_angles_rad : (2,) float
+            Prior mean of the Fick (yaw, pitch).
+        prior_cov_rad2 : (2, 2) float
+            Prior covariance Σ (rad²), symmetric positive definite.
+        rows : (float, float), optional
+            As :meth:`match`.
+        min_matches : int
+            Fewest matched detections of an accepted identification: on the orbit one glint
+            (two coordinates) fixes the two angles.
+
+        Returns
+        -------
+        GlintMatch
+        """
+        p = self.params
+        if p.model != "orbit":
+            raise ValueError("match_near needs the 'orbit' model (its prior is on the angles)")
+        g, lo, hi = self._inputs(glints_px, rows)
+        mean = np.asarray(prior_angles_rad, dtype=np.float64).reshape(2)
+        cov = np.asarray(prior_cov_rad2, dtype=np.float64)
+        if cov.shape != (2, 2) or not np.isfinite(cov).all() or not np.isfinite(mean).all():
+            raise ValueError(f"prior_angles_rad (2,) and prior_cov_rad2 (2, 2) must be finite, "
+                             f"got shapes {mean.shape} and {cov.shape}")
+        w, V = np.linalg.eigh(0.5 * (cov + cov.T))
+        if not w.min() > 0:
+            raise ValueError("prior_cov_rad2 must be positive definite")
+        if min_matches < 1:
+            raise ValueError(f"min_matches must be >= 1, got {min_matches}")
+        k = g.shape[0]
+        if k == 0:
+            return self._failure(0, TOO_FEW_GLINTS)
+        weight = (V / w) @ V.T
+        prior = _Prior(mean, weight, (mean, p.noise_px ** 2 * weight))
+        # Prior SD of each predicted glint: the largest over lights of the projected covariance
+        # J Σ Jᵀ, J by central differences of the prediction (0.1 mrad: 0.01-0.1 px).
+        h = 1e-4
+        steps = np.array([[h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
+        pred, vis = self.predict(mean + steps)
+        J = np.stack([pred[0] - pred[1], pred[2] - pred[3]], axis=-1) / (2 * h)  # (n, 2, 2)
+        both = vis.all(axis=0)
+        spread = 0.0
+        if both.any():
+            C = J[both] @ cov @ np.swapaxes(J[both], 1, 2)
+            spread = float(np.sqrt(np.linalg.eigvalsh(C)[:, -1].max()))
+        gate = math.hypot(p.gate_px, 3.0 * spread)
+        result = self._choose(g, lo, hi, [mean], gate, min_matches, prior)
+        return result if result is not None else self._failure(k, NO_HYPOTHESIS)
+
+    def _inputs(self, glints_px, rows):
+        """Checked detections (k, 2) and band rows (lo, hi)."""
+        g = np.asarray(glints_px, dtype=np.float64)
+        if g.ndim != 2 or g.shape[1] != 2:
+            raise ValueError(f"glints_px must have shape (k, 2), got {g.shape}")
+        if not np.isfinite(g).all():
+            raise ValueError("glints_px must be finite")
+        cam = self.setup.camera
+        lo, hi = (-0.5, cam.height_px - 0.5) if rows is None else (float(rows[0]), float(rows[1]))
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo <= hi):
+            raise ValueError(f"rows must be finite (first, last) with first <= last, got {rows!r}")
+        return g, lo, hi
+
+    def _choose(self, g, lo, hi, starts, first_gate, min_matches, prior: _Prior | None = None
+                ) -> GlintMatch | None:
+        """Refine the starting poses, keep the lowest score; None when none matches anything.
+        With a prior, each hypothesis' score also pays for its distance from it (squared
+        Mahalanobis distance of its angles), and its fit includes the prior where it has one."""
+        if not starts:
+            return None
+        X = np.array([self._x_from_angles(a) for a in starts])
+        # The arc's chain shifted by a light or two along itself is the classic wrong basin
+        # (the glints are near-evenly spaced): those identities are tried explicitly, as
+        # starts whose first assignment is shifted. With a prior, shifted from the prior's
+        # own assignment, in the same batch; cold, from the leading refined hypotheses.
+        steps = (-2, -1, 1, 2)
+        first = None
+        if prior is not None:
+            pred, cand, _ = self._candidates(X[:1], lo, hi)
+            base, _ = self._assign(g, pred[0], cand[0], first_gate)
+            shifted = [a for a in (self._shift(base, s) for s in steps) if (a >= 0).any()]
+            first = [None] * len(starts) + shifted
+            X = np.concatenate([X, np.repeat(X[:1], len(shifted), axis=0)])
+        fit_prior = None if prior is None else prior.fit
+        refined = self._refine(g, lo, hi, X, first_gate, first, fit_prior)
+        if not refined:
+            return None
+        if prior is None:
+            refined.sort(key=lambda h: h.score)
+            shifted = [(h, self._shift(h.assign, s))
+                       for h in refined[: self.params.shift_sources] for s in steps]
+            shifted = [(h, a) for h, a in shifted if (a >= 0).any()]
+            if shifted:
+                refined += self._refine(g, lo, hi, np.array([h.x for h, _ in shifted]),
+                                        self.params.gate_px, [a for _, a in shifted])
+        else:
+            refined = [replace(h, score=h.score + prior.distance2(self._angles_center(h.x)[0]))
+                       for h in refined]
+        refined.sort(key=lambda h: h.score)
+        best = refined[0]
+        # Runner-up: the best hypothesis whose identities differ from the winner's.
+        margin = math.inf
+        for h in refined[1:]:
+            if not np.array_equal(h.assign, best.assign):
+                margin = h.score - best.score
+                break
+        return self._result(g, best, margin, min_matches)
+
+    def _shift(self, assign, step: int) -> np.ndarray:
+        """Every matched light moved ``step`` places along its own arc (-1 where that leaves
+        the arc)."""
+        out = np.full_like(assign, -1)
+        m = assign >= 0
+        moved = assign[m] + step
+        n = self.lights_world_m.shape[0]
+        inside = (moved >= 0) & (moved < n)
+        same = np.zeros_like(inside)
+        same[inside] = self.group[moved[inside]] == self.group[assign[m][inside]]
+        out[np.flatnonzero(m)[same]] = moved[same]
+        return out
+
+    def _failure(self, k: int, reason: str) -> GlintMatch:
+        return GlintMatch(np.full(k, -1, dtype=np.int64), np.zeros(k), np.full(k, np.nan),
+                          np.full(3, np.nan), np.full(2, np.nan), math.nan, math.inf, 0.0, 0,
+                          reason)
+
+    # ----------------------------------------------------------------------- coarse search
+
+    def _coarse(self, g, lo, hi, nodes, count) -> list[np.ndarray]:
+        """Angles of the ``count`` best local minima of the score over the grid (or over the
+        grid nodes where ``nodes`` is True)."""
+        p = self.params
+        pred, vis = self.grid_glints_px, self.grid_visible
+        v = pred[..., 1]
+        cand = vis & (v >= lo - p.band_margin_px) & (v <= hi + p.band_margin_px)
+        if nodes is not None:
+            cand &= nodes[:, None]
+        n_nodes, n_lights = cand.shape
+        pair = np.flatnonzero(cand)  # (node, light) pairs, node-major
+        if pair.size == 0:
+            return []
+        node, light = pair // n_lights, pair % n_lights
+        gate2 = p.coarse_gate_px ** 2
+        # Squared distance of every detection to every candidate glint of every node.
+        du = pred[node, light, 0][:, None] - g[None, :, 0]
+        dv = pred[node, light, 1][:, None] - g[None, :, 1]
+        d2 = du * du + dv * dv  # (pairs, k)
+        first = np.flatnonzero(np.concatenate([[True], node[1:] != node[:-1]]))
+        used = node[first]
+        # A detection is scored at its node's nearest candidate; a candidate well inside the
+        # band is missing when no detection lies within the gate. The grid is up to 2 px off,
+        # so distances are scored against the coarse gate: a detection at the coarse gate
+        # costs as much as an unmatched one.
+        near = np.minimum(np.minimum.reduceat(d2, first, axis=0), gate2)  # (nodes used, k)
+        vc = v[node, light]
+        inside = (vc >= lo + p.band_margin_px) & (vc <= hi - p.band_margin_px)
+        missing = np.add.reduceat((inside & (d2.min(axis=1) > gate2)).astype(np.float64), first)
+        unmatched_cost = p.unmatched_cost
+        score = np.full(n_nodes, np.inf)
+        score[used] = near.sum(axis=1) / gate2 * unmatched_cost + p.missing_cost * missing
+        score = score.reshape(self._grid_shape)
+        # Local minima over 3x3 neighbourhoods, best first; a node no better than leaving
+        # every detection unmatched is no hypothesis.
+        padded = np.pad(score, 1, constant_values=np.inf)
+        h, w = score.shape
+        nb = np.min([padded[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx]
+                     for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx], axis=0)
+        flat = score.ravel()
+        minima = np.flatnonzero((flat <= nb.ravel()) & (flat < g.shape[0] * unmatched_cost))
+        order = minima[np.argsort(flat[minima], kind="stable")][:count]
+        return [self.grid_angles_rad[i] for i in order]
+
+    # ----------------------------------------------------------------------- refinement
+
+    def _assign(self, g, pred, cand, gate):
+        """Gated optimal assignment: (k,) light per detection (-1 none) and its distance."""
+        k = g.shape[0]
+        lights = np.flatnonzero(cand)
+        assign = np.full(k, -1, dtype=np.int64)
+        dist = np.full(k, np.nan)
+        if lights.size == 0:
+            return assign, dist
+        d2 = ((g[:, None, :] - pred[None, lights, :]) ** 2).sum(-1)
+        gate2 = gate * gate
+        big = 1e6 * gate2
+        # Columns: the candidates, then one "unmatched" option per detection at the gate's cost.
+        cost = np.full((k, lights.size + k), big)
+        cost[:, : lights.size] = np.where(d2 <= gate2, d2, big)
+        cost[np.arange(k), lights.size + np.arange(k)] = gate2
+        r, c = linear_sum_assignment(cost)
+        real = c < lights.size
+        r, c = r[real], c[real]
+        real = d2[r, c] <= gate2
+        assign[r[real]] = lights[c[real]]
+        dist[r[real]] = np.sqrt(d2[r[real], c[real]])
+        return assign, dist
+
+    def _fit(self, g, assigns, X, fit_prior=None):
+        """Refit every hypothesis from X (H, p) with its matched detections, in one batched
+        call, with the Gaussian prior ``fit_prior`` (mean, information) where given; returns
+        (X, ok (H,))."""
+        # Only the lights matched in some hypothesis enter the fit (a fraction of the rig:
+        # the fit's cost is the projection of every light it carries).
+        used = np.unique(np.concatenate([a[a >= 0] for a in assigns]))
+        slot = np.full(self.lights_world_m.shape[0], -1)
+        slot[used] = np.arange(used.size)
+        glints = np.full((len(assigns), used.size, 2), np.nan)
+        for h, assign in enumerate(assigns):
+            m = assign >= 0
+            glints[h, slot[assign[m]]] = g[m]
+        problem = replace(self.problem, lights_world_m=self.lights_world_m[used])
+        mean, info = (None, None) if fit_prior is None else fit_prior
+        fit = fit_cornea(problem, glints, None, X, model=self.params.model, prior_mean=mean,
+                         prior_information=info)
+        x_new = fit.angles_rad if self.params.model == "orbit" else fit.center_m
+        ok = fit.ok & np.isfinite(x_new).all(axis=1)
+        return np.where(ok[:, None], x_new, X), ok
+
+    def _candidates(self, X, lo, hi):
+        """Predicted glints (H, n, 2), candidates and glints well inside the band (H, n)."""
+        pred, vis = self._predict_x(X)
+        v = pred[..., 1]
+        m = self.params.band_margin_px
+        return pred, vis & (v >= lo - m) & (v <= hi + m), vis & (v >= lo + m) & (v <= hi - m)
+
+    def _refine(self, g, lo, hi, X, first_gate, first_assign=None, fit_prior=None
+                ) -> list[_Hypothesis]:
+        """Match -> refit -> re-predict -> re-match every start in X (H, p) until its
+        assignment is stable; hypotheses that reach the same assignment are merged.
+        ``first_assign`` (H lists of (k,) lights) replaces the first round's matching;
+        ``fit_prior`` (mean, information) enters every refit."""
+        p = self.params
+        X = np.array(X, dtype=np.float64)
+        H = X.shape[0]
+        gate = np.full(H, first_gate)
+        prev: list = [None] * H
+        fit_ok = np.zeros(H, dtype=bool)
+        iters = np.zeros(H, dtype=int)
+        active = np.ones(H, dtype=bool)
+        alive = np.ones(H, dtype=bool)
+        for it in range(p.max_iter):
+            idx = np.flatnonzero(active)
+            if idx.size == 0:
+                break
+            given = it == 0 and first_assign is not None
+            if not given or any(first_assign[h] is None for h in idx):
+                pred, cand, _ = self._candidates(X[idx], lo, hi)
+            to_fit, assigns = [], []
+            seen = {}
+            for a, h in enumerate(idx):
+                if given and first_assign[h] is not None:
+                    assign = first_assign[h]
+                else:
+                    assign, _ = self._assign(g, pred[a], cand[a], gate[h])
+                key = assign.tobytes()
+                if not (assign >= 0).any() or (key in seen and gate[h] == gate[seen[key]]):
+                    active[h] = alive[h] = False  # nothing matched, or a duplicate
+                    continue
+                seen[key] = h
+                if prev[h] is not None and np.array_equal(assign, prev[h]) and gate[h] == p.gate_px:
+                    active[h] = False
+                    continue
+                prev[h] = assign
+                to_fit.append(h)
+                assigns.append(assign)
+            if to_fit:
+                X[to_fit], ok = self._fit(g, assigns, X[to_fit], fit_prior)
+                fit_ok[to_fit] = ok
+                iters[to_fit] += 1
+                gate[np.array(to_fit)[ok]] = p.gate_px
+        keep = np.flatnonzero(alive)
+        if keep.size == 0:
+            return []
+        # Final assignment at the final gate, the arc order enforced, and one more refit where
+        # it changed the matches.
+        X = X[keep]
+        pred, cand, inside = self._candidates(X, lo, hi)
+        final = [self._final_assign(g, pred[a], cand[a]) for a in range(keep.size)]
+        changed = [a for a in range(keep.size) if (final[a][0] >= 0).any() and (
+            prev[keep[a]] is None or not np.array_equal(final[a][0], prev[keep[a]]))]
+        ok = fit_ok[keep].copy()
+        if changed:
+            # Hypotheses whose matches stand keep their pose, predictions and matches.
+            X[changed], ok_c = self._fit(g, [final[a][0] for a in changed], X[changed], fit_prior)
+            ok[changed] = ok_c
+            pred[changed], cand[changed], inside[changed] = self._candidates(X[changed], lo, hi)
+            for a in changed:
+                final[a] = self._final_assign(g, pred[a], cand[a])
+        sigma2 = p.noise_px ** 2
+        out = []
+        for a in range(keep.size):
+            assign, dist = final[a]
+            matched = assign >= 0
+            detected = np.zeros(self.lights_world_m.shape[0], dtype=bool)
+            detected[assign[matched]] = True
+            score = (np.sum(dist[matched] ** 2) / sigma2
+                     + (~matched).sum() * p.unmatched_cost
+                     + p.missing_cost * (inside[a] & ~detected).sum())
+            out.append(_Hypothesis(X[a].copy(), assign, dist, pred[a], cand[a], float(score),
+                                   int(iters[keep[a]]), bool(ok[a])))
+        return out
+
+    def _final_assign(self, g, pred, cand):
+        """Assignment at the final gate with the arc order enforced, and its distances (NaN
+        where unmatched)."""
+        assign, dist = self._assign(g, pred, cand, self.params.gate_px)
+        assign = self._enforce_order(g, pred, assign)
+        return assign, np.where(assign >= 0, dist, np.nan)
+
+    def _enforce_order(self, g, pred, assign):
+        """Drop matches that break the lights' order along their arc (module docstring, 3)."""
+        assign = assign.copy()
+        for _ in range(assign.size):
+            det = np.flatnonzero(assign >= 0)
+            if det.size < 2:
+                break
+            lights = assign[det]
+            order = np.lexsort((lights, self.group[lights]))
+            det, lights = det[order], lights[order]
+            same = self.group[lights[1:]] == self.group[lights[:-1]]
+            dp = pred[lights[1:]] - pred[lights[:-1]]
+            dq = g[det[1:]] - g[det[:-1]]
+            bad = np.flatnonzero(same & ((dp * dq).sum(axis=1) <= 0))
+            if bad.size == 0:
+                break
+            a, b = det[bad[0]], det[bad[0] + 1]
+            ra = np.linalg.norm(g[a] - pred[assign[a]])
+            rb = np.linalg.norm(g[b] - pred[assign[b]])
+            assign[a if ra >= rb else b] = -1
+        return assign
+
+    # ----------------------------------------------------------------------- result
+
+    def _result(self, g, h: _Hypothesis, margin: float, min_matches: int) -> GlintMatch:
+        p = self.params
+        k = g.shape[0]
+        matched = h.assign >= 0
+        n_matched = int(matched.sum())
+        if not h.fit_ok:
+            reason = FIT_FAILED
+        elif n_matched < min_matches:
+            reason = TOO_FEW_GLINTS
+        elif margin < p.min_margin:
+            reason = AMBIGUOUS
+        else:
+            reason = OK
+        if reason != OK:
+            # No identity is claimed from a fit that cannot be trusted (STYLE: a result with a
+            # reason, not a guess).
+            return GlintMatch(np.full(k, -1, dtype=np.int64), np.zeros(k), np.full(k, np.nan),
+                              np.full(3, np.nan), np.full(2, np.nan), math.nan, h.score, margin,
+                              h.iterations, reason)
+        angles, center = self._angles_center(h.x)
+        rms = float(np.sqrt(np.mean(h.residual[matched] ** 2)))
+        # Confidence: residual, margin to the second-best assignment, hypothesis margin.
+        conf = np.zeros(k)
+        lights = np.flatnonzero(h.cand)
+        d_all = np.sqrt(((g[:, None, :] - h.pred[None, lights, :]) ** 2).sum(-1))  # (k, m)
+        det = np.flatnonzero(matched)
+        own = np.searchsorted(lights, h.assign[det])
+        r = h.residual[det]
+        other_cand = d_all[det].copy()  # other candidates near the detection
+        other_cand[np.arange(det.size), own] = np.inf
+        other_det = d_all[:, own].copy()  # other detections near the matched prediction
+        other_det[det, np.arange(det.size)] = np.inf
+        d2 = np.minimum(other_cand.min(axis=1, initial=np.inf),
+                        other_det.min(axis=0, initial=np.inf))
+        c_res = np.clip(1.0 - r / p.gate_px, 0.0, 1.0)
+        c_alt = np.clip((d2 - r) / p.gate_px, 0.0, 1.0)
+        c_hyp = 1.0 if math.isinf(margin) else math.tanh(max(margin, 0.0) / 4.0)
+        conf[det] = c_res * c_alt * c_hyp
+        return GlintMatch(h.assign.copy(), conf, h.residual.copy(), center, angles, rms,
+                          h.score, margin, h.iterations, reason)
+
+
+def match_glints(glints_px, setup: Setup, rows=None, prior_angles_rad=None,
+                 params: MatchParams = MatchParams()) -> GlintMatch:
+    """One-off :meth:`GlintMatcher.match` (builds the matcher's grid: keep a
+    :class:`GlintMatcher` to match many bands)."""
+    return GlintMatcher(setup, params).match(glints_px, rows, prior_angles_rad)

@@ -1,0 +1,137 @@
+"""The dataset format (``scet-dataset``, version 1): names, constants, errors and the
+label type; see :mod:`scet_render.dataset` for the layout on disk.
+"""
+
+from __future__ import annotations
+
+import numbers
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from estimator import formats
+
+#: The dataset's names on disk, from SCET's one list of them (:mod:`estimator.formats`).
+FORMAT, VERSION = formats.DATASET_FORMAT, formats.DATASET_VERSION
+MANIFEST_NAME, LABELS_NAME, FRAMES_DIR = formats.MANIFEST_NAME, formats.LABELS_NAME, formats.FRAMES_DIR
+PARTIAL_SUFFIX = formats.PARTIAL_SUFFIX
+
+TRAJECTORY_KINDS = ("fixations", "saccades", "grid")
+
+#: The paper's accuracy grid (Sec. 3.2): 24 x 15 cell centres on the screen.
+GRID_COLS, GRID_ROWS = 24, 15
+#: Fixation length of the "fixations" and "grid" trajectories, s: long enough for a gaze
+#: estimate per target, short enough that a 64-frame dataset (1.06 s) visits several targets.
+FIXATION_S = 0.25
+#: Fixation lengths of the "saccades" trajectory, s (uniform; typical reading/search values).
+SACCADE_FIXATION_RANGE_S = (0.1, 0.3)
+#: PNG zlib level: fixed, so that the bytes do not depend on OpenCV's default.
+PNG_COMPRESSION = 3
+
+# Independent random streams derived from the dataset seed.
+_STREAM_TRAJECTORY = 0
+_STREAM_RENDER = 1
+_STREAM_SENSOR = 2
+
+
+class DatasetError(ValueError):
+    """A dataset folder or file is missing, malformed or of another format or version."""
+
+
+class DatasetMismatchError(DatasetError):
+    """A run was pointed at a folder holding a dataset made with other arguments."""
+
+
+@dataclass(frozen=True, slots=True)
+class RenderSummary:
+    """What one :func:`render_dataset` call did.
+
+    Attributes
+    ----------
+    path : Path
+        The dataset folder.
+    frames_rendered : tuple of int
+        Frames rendered by this call.
+    frames_skipped : tuple of int
+        Frames already complete on disk (a resumed run).
+    """
+
+    path: Path
+    frames_rendered: tuple[int, ...]
+    frames_skipped: tuple[int, ...]
+
+
+@dataclass(frozen=True, slots=True)
+class StrobeLabel:
+    """One line of ``labels.jsonl`` (see the module docstring for the meaning of each field).
+
+    Attributes
+    ----------
+    frame, strobe : int
+    time_s, pulse_start_s : float
+    first_row, last_row : int
+    full_rows : (int, int)
+        Half-open row range.
+    target_m, cornea_center_m : (3,) float
+    yaw_rad, pitch_rad : float
+    glints_px : (n, 2) float
+        NaN where the file holds null.
+    glints_visible : (n,) bool
+    """
+
+    frame: int
+    strobe: int
+    time_s: float
+    pulse_start_s: float
+    first_row: int
+    last_row: int
+    full_rows: tuple[int, int]
+    target_m: np.ndarray
+    yaw_rad: float
+    pitch_rad: float
+    cornea_center_m: np.ndarray
+    glints_px: np.ndarray
+    glints_visible: np.ndarray
+
+
+def _exr():
+    import OpenEXR
+
+    return OpenEXR
+
+
+def _floats(v) -> list[float]:
+    return [float(x) for x in np.asarray(v).ravel()]
+
+
+def _vec3(v) -> np.ndarray:
+    a = np.array(v, dtype=np.float64)
+    if a.shape != (3,):
+        raise ValueError(f"expected 3 numbers, got {v!r}")
+    return a
+
+
+def _check_int(name: str, value, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < minimum:
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+    return int(value)
+
+
+def _check_kind(kind) -> str:
+    if kind not in TRAJECTORY_KINDS:
+        raise ValueError(f"trajectory must be one of {TRAJECTORY_KINDS}, got {kind!r}")
+    return kind
+
+
+def counts_png(dn, bit_depth: int) -> bytes:
+    """PNG bytes of a frame of sensor counts: 8-bit for ``bit_depth`` <= 8, else 16-bit (a
+    10-bit sensor's counts as they are, not scaled), compression :data:`PNG_COMPRESSION`."""
+    import cv2
+
+    word = np.uint8 if bit_depth <= 8 else np.uint16
+    ok, png = cv2.imencode(".png", np.asarray(dn).astype(word),
+                           [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
+    if not ok:
+        raise RuntimeError("OpenCV could not encode a frame as PNG")
+    return png.tobytes()

@@ -1,0 +1,181 @@
+"""Ground-truth labels of a dataset (one line per strobe sample) and its EXR frames:
+computing, writing and reading them.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from estimator.banding import band_layout, strobe_instant
+from estimator.setup import Setup
+from ..motion import Trajectory
+from ..simulate import ground_truth_glints
+from .format import DatasetError, FORMAT, LABELS_NAME, StrobeLabel, VERSION, _floats, _vec3
+from .manifest import read_manifest
+
+
+
+# --------------------------------------------------------------------------- labels
+
+
+def visible_bands(setup: Setup, frame: int) -> list:
+    """The bands of ``frame`` that light visible rows (:func:`estimator.banding.band_layout`)."""
+    return [b for b in band_layout(setup.sensor, setup.strobe, frame) if b.visible]
+
+
+def frame_labels(setup: Setup, trajectory: Trajectory, frame: int, bands=None) -> list[dict]:
+    """Ground truth of every strobe that lights visible rows of ``frame``.
+
+    Parameters
+    ----------
+    setup : Setup
+    trajectory : Trajectory
+    frame : int
+    bands : list of Band, optional
+        The frame's :func:`visible_bands`, when the caller has them already.
+
+    Returns
+    -------
+    list of dict
+        One JSON-ready dict per strobe (keys as in the module docstring), by pulse index.
+    """
+    sensor, strobe = setup.sensor, setup.strobe
+    N = sensor.visible_lines
+    if bands is None:
+        bands = visible_bands(setup, frame)
+    if not bands:
+        return []
+    start_s = np.array([b.strobe_time_s for b in bands])
+    time_s = strobe_instant(start_s, strobe.pulse_s)
+    yaw, pitch = trajectory.angles_at(time_s)
+    target = trajectory.target_at(time_s)
+    glints, visible, center = ground_truth_glints(setup, yaw, pitch)
+    out = []
+    for i, b in enumerate(bands):
+        full_start, full_stop = min(b.full_rows[0], N), min(b.full_rows[1], N)
+        out.append({
+            "frame": int(frame),
+            "strobe": int(b.pulse_index),
+            "time_s": float(time_s[i]),
+            "pulse_start_s": float(start_s[i]),
+            "first_row": int(b.first_row),
+            "last_row": int(min(b.last_row, N - 1)),
+            "full_rows": [int(full_start), int(max(full_start, full_stop))],
+            "target_m": _floats(target[i]),
+            "yaw_rad": float(yaw[i]),
+            "pitch_rad": float(pitch[i]),
+            "cornea_center_m": _floats(center[i]),
+            "glints_px": [_floats(g) if np.all(np.isfinite(g)) else None for g in glints[i]],
+            "glints_visible": [bool(v) for v in visible[i]],
+        })
+    return out
+
+
+@dataclass(frozen=True, slots=True)
+class ExrFrame:
+    """One ``frames/NNNNNN.exr`` file.
+
+    Attributes
+    ----------
+    radiance : (H, W) float32
+        Pulse-weighted linear radiance, as rendered.
+    frame : int
+    pulse_indices : (P,) int64
+        Pulses rendered into the frame.
+    strobe_times_s : (P,) float
+        Their instants (pulse centres).
+    scene_sha256 : str
+    """
+
+    radiance: np.ndarray
+    frame: int
+    pulse_indices: np.ndarray
+    strobe_times_s: np.ndarray
+    scene_sha256: str
+
+
+def read_exr(path) -> ExrFrame:
+    """Read a dataset frame's EXR file, checking its format and version attributes.
+
+    Raises
+    ------
+    DatasetError
+        Unreadable, not written by this module, another version, or no "Y" channel.
+    """
+    import OpenEXR
+
+    path = Path(path)
+    try:
+        with OpenEXR.File(str(path)) as exr:
+            # The binding empties its header dict when the file closes: copy what we need.
+            header, channels = dict(exr.header()), exr.channels()
+            names = sorted(channels)
+            radiance = np.array(channels["Y"].pixels, copy=True) if "Y" in channels else None
+    except (OSError, RuntimeError) as exc:
+        raise DatasetError(f"{path}: cannot read the EXR file ({exc})") from None
+    if header.get("scet_format") != FORMAT or header.get("scet_version") != VERSION:
+        raise DatasetError(f"{path}: expected {FORMAT} version {VERSION} attributes, got "
+                           f"{header.get('scet_format')!r} version {header.get('scet_version')!r}")
+    if radiance is None or radiance.dtype != np.float32 or radiance.ndim != 2:
+        raise DatasetError(f"{path}: expected one float32 channel 'Y', got {names}")
+    try:
+        pulses = np.array(json.loads(header["scet_pulse_indices"]), dtype=np.int64)
+        times = np.array(json.loads(header["scet_strobe_times_s"]), dtype=np.float64)
+        frame, sha = int(header["scet_frame"]), str(header["scet_scene_sha256"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise DatasetError(f"{path}: malformed SCET header attributes ({exc})") from None
+    if pulses.shape != times.shape or pulses.ndim != 1:
+        raise DatasetError(f"{path}: scet_pulse_indices and scet_strobe_times_s differ in length")
+    return ExrFrame(radiance, frame, pulses, times, sha)
+
+
+def iter_labels(path) -> Iterator[StrobeLabel]:
+    """Iterate over the strobe labels of a finished dataset, in file order.
+
+    Parameters
+    ----------
+    path : str or Path
+        The dataset folder.
+
+    Yields
+    ------
+    StrobeLabel
+
+    Raises
+    ------
+    DatasetError
+        Not a dataset of this format and version, unfinished (no labels file), or a malformed
+        line (the message names the line).
+    """
+    path = Path(path)
+    read_manifest(path)
+    file = path / LABELS_NAME
+    if not file.is_file():
+        raise DatasetError(f"{file}: missing; the run that writes this dataset did not finish "
+                           "(rerun render_dataset with the same arguments to complete it)")
+    with open(file, encoding="utf-8") as f:
+        for number, line in enumerate(f, start=1):
+            try:
+                yield _label(json.loads(line))
+            except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
+                raise DatasetError(f"{file}, line {number}: malformed label ({exc})") from None
+
+
+def _label(d: dict) -> StrobeLabel:
+    glints = np.array([[np.nan, np.nan] if g is None else g for g in d["glints_px"]],
+                      dtype=np.float64).reshape(-1, 2)
+    visible = np.array(d["glints_visible"], dtype=bool)
+    if visible.shape != (glints.shape[0],):
+        raise ValueError("glints_px and glints_visible differ in length")
+    return StrobeLabel(
+        frame=int(d["frame"]), strobe=int(d["strobe"]), time_s=float(d["time_s"]),
+        pulse_start_s=float(d["pulse_start_s"]), first_row=int(d["first_row"]),
+        last_row=int(d["last_row"]), full_rows=(int(d["full_rows"][0]), int(d["full_rows"][1])),
+        target_m=_vec3(d["target_m"]), yaw_rad=float(d["yaw_rad"]),
+        pitch_rad=float(d["pitch_rad"]), cornea_center_m=_vec3(d["cornea_center_m"]),
+        glints_px=glints, glints_visible=visible)

@@ -1,0 +1,202 @@
+"""A dataset's manifest: what made it (scene, settings, software), and the checks
+that let a rerun resume it or refuse a folder of another run.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import numbers
+from dataclasses import fields, is_dataclass
+from enum import Enum
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+
+from estimator.formats import check_format
+from estimator.setup import Setup
+from ..render import SensorModel
+from .format import DatasetError, DatasetMismatchError, FORMAT, FRAMES_DIR, LABELS_NAME, MANIFEST_NAME, PARTIAL_SUFFIX, VERSION
+
+
+
+# --------------------------------------------------------------------------- manifest
+
+
+def _manifest(setup: Setup, text: str, *, frames, spp, kind, seed, variant, cornea,
+              sensor: SensorModel) -> dict:
+    return {
+        "format": FORMAT,
+        "version": VERSION,
+        "scene": {
+            "name": setup.name,
+            "file": Path(setup.source).name if setup.source else "",
+            "sha256": hashlib.sha256(text.encode("utf-8")).hexdigest(),
+            "toml": text,
+        },
+        "setup_sha256": setup_fingerprint(setup),
+        "software": software_versions(),
+        "seed": seed,
+        "trajectory": kind,
+        "frames": frames,
+        "image": {"width_px": setup.camera.width_px, "height_px": setup.camera.height_px,
+                  "png_bit_depth": 8 if sensor.bit_depth <= 8 else 16},
+        "render": {"spp": spp, "variant": variant, "cornea": cornea, "renderer": None},
+        "sensor": sensor.to_dict(),
+        "files": {"radiance": f"{FRAMES_DIR}/{{frame:06d}}.exr",
+                  "sensor": f"{FRAMES_DIR}/{{frame:06d}}.png", "labels": LABELS_NAME},
+    }
+
+
+def _manifest_bytes(manifest: dict) -> bytes:
+    return (json.dumps(manifest, indent=2, allow_nan=False) + "\n").encode("utf-8")
+
+
+def software_versions() -> dict:
+    """Versions of the packages whose behaviour shapes a dataset's bytes ("absent" if missing)."""
+    import cv2
+
+    def version(dist):
+        try:
+            return metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            return "absent"
+
+    return {"scet": version("scet"), "numpy": np.__version__, "mitsuba": version("mitsuba"),
+            "drjit": version("drjit"), "openexr": version("OpenEXR"), "opencv": cv2.__version__}
+
+
+def setup_fingerprint(setup: Setup) -> str:
+    """sha256 of every field of a Setup (arrays and floats exactly), except its source path."""
+
+    def plain(x):
+        if is_dataclass(x):
+            return {f.name: plain(getattr(x, f.name)) for f in fields(x) if f.name != "source"}
+        if isinstance(x, np.ndarray):
+            return {"shape": list(x.shape), "data": [float(v).hex() for v in x.ravel()]}
+        if isinstance(x, (tuple, list)):
+            return [plain(v) for v in x]
+        if isinstance(x, Enum):
+            return x.name
+        if isinstance(x, (bool, str, type(None))):
+            return x
+        if isinstance(x, numbers.Integral):
+            return int(x)
+        if isinstance(x, numbers.Real):
+            return float(x).hex()
+        raise TypeError(f"cannot fingerprint a {type(x).__name__} in the setup")
+
+    text = json.dumps(plain(setup), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+def _scene_text(setup: Setup, scene_text: str | None) -> str:
+    if scene_text is not None:
+        if not isinstance(scene_text, str):
+            raise ValueError("scene_text must be the scene's TOML text (a str)")
+        return scene_text
+    path = Path(setup.source)
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"cannot read the scene file {setup.source!r} named by the setup ({exc}); "
+                         "pass scene_text=") from None
+    digest = hashlib.sha256(text.encode("utf-8")).hexdigest()
+    if setup.source_sha256 and digest != setup.source_sha256:
+        raise ValueError(f"{path}: the file changed since the setup was loaded (sha256 differs "
+                         "from setup.source_sha256); reload it or pass scene_text=")
+    return text
+
+
+def _compare_manifests(found: dict, expected: dict, path: Path, *, before_renderer: bool = False,
+                       ignore_variant: bool = False) -> None:
+    """Raise DatasetMismatchError naming every entry where ``found`` differs from ``expected``.
+
+    ``before_renderer`` skips what only the renderer knows (its settings; with
+    ``ignore_variant``, also the variant that None resolves to).
+    """
+    want = json.loads(_manifest_bytes(expected))
+    skip = set()
+    if before_renderer:
+        skip.add("render.renderer")
+        if ignore_variant:
+            skip.add("render.variant")
+    diffs = []
+
+    def walk(a, b, where):
+        if isinstance(a, dict) and isinstance(b, dict):
+            for key in sorted(set(a) | set(b)):
+                name = f"{where}.{key}" if where else key
+                if name not in skip:
+                    walk(a.get(key, "<missing>"), b.get(key, "<missing>"), name)
+        elif a != b:
+            diffs.append((where, a, b))
+
+    walk(found, want, "")
+    if diffs:
+        def short(v):
+            s = json.dumps(v) if not isinstance(v, str) else repr(v)
+            return s if len(s) <= 80 else s[:77] + "..."
+
+        lines = "; ".join(f"{k}: dataset has {short(a)}, this run wants {short(b)}"
+                          for k, a, b in diffs)
+        raise DatasetMismatchError(
+            f"{path}: the folder holds another dataset ({lines}). Use another output folder, or "
+            "rerun with the dataset's arguments to resume it")
+
+
+def _prepare_folder(out: Path) -> dict | None:
+    """Existing manifest (None for a new dataset); removes partial files of a killed run."""
+    if out.exists() and not out.is_dir():
+        raise DatasetError(f"{out}: exists and is not a folder")
+    if not out.exists():
+        return None
+    manifest = out / MANIFEST_NAME
+    frames_dir = out / FRAMES_DIR
+    if not manifest.exists():
+        foreign = [p.name for p in out.iterdir()
+                   if not p.name.endswith(PARTIAL_SUFFIX)
+                   and not (p == frames_dir and p.is_dir() and not any(frames_dir.iterdir()))]
+        if foreign:
+            raise DatasetError(f"{out}: not empty and not a SCET dataset (no {MANIFEST_NAME}; "
+                               f"found {sorted(foreign)[:5]}); refusing to write into it")
+    for folder in (out, frames_dir):
+        if folder.is_dir():
+            for p in folder.iterdir():
+                if p.name.endswith(PARTIAL_SUFFIX) and p.is_file():
+                    p.unlink()
+    return read_manifest(out) if manifest.exists() else None
+
+
+def _frame_done(frames_dir: Path, frame: int) -> bool:
+    return ((frames_dir / f"{frame:06d}.exr").is_file()
+            and (frames_dir / f"{frame:06d}.png").is_file())
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def read_manifest(path) -> dict:
+    """The manifest of a dataset folder, after checking its format and version.
+
+    Parameters
+    ----------
+    path : str or Path
+        The dataset folder (or its ``manifest.json``).
+
+    Raises
+    ------
+    DatasetError
+        Missing, unreadable, or another format or version.
+    """
+    path = Path(path)
+    file = path if path.name == MANIFEST_NAME and path.is_file() else path / MANIFEST_NAME
+    try:
+        data = json.loads(file.read_bytes().decode("utf-8"))
+    except FileNotFoundError:
+        raise DatasetError(f"{file}: no such file; not a SCET dataset") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise DatasetError(f"{file}: cannot read the manifest ({exc})") from None
+    check_format(data, file, FORMAT, VERSION, DatasetError)
+    return data

@@ -1,0 +1,303 @@
+"""Rendered datasets on disk: banded frames, sensor output and per-strobe ground truth.
+
+Layout of a dataset folder (format ``scet-dataset``, version 1)::
+
+    manifest.json        what was rendered and how (see below); written first
+    frames/000000.exr    linear radiance, float32, one channel "Y" (pulse-weighted, as rendered)
+    frames/000000.png    sensor output (raw DN, black level included): 16-bit PNG for bit
+                         depths above 8, 8-bit PNG otherwise
+    ...
+    labels.jsonl         one JSON object per strobe sample; written last
+
+``manifest.json`` holds the format name and version, the scene (name, file name, sha256 and the
+full TOML text), a fingerprint of the exact :class:`~estimator.setup.Setup` rendered (it catches
+setups changed in code, e.g. a scaled-down camera), software versions, the seed, the render
+settings (spp, Mitsuba variant, cornea model), the trajectory kind, the frame count, the image
+size and every :class:`~scet_render.render.sensor.SensorModel` parameter, and the renderer's own
+settings (resolved variant, seed, ambient spp, scene options). It has no time stamps: two runs
+with the same arguments on the same software write byte-identical datasets.
+
+Each EXR header carries ``scet_format``, ``scet_version``, ``scet_frame`` (int),
+``scet_scene_sha256`` (string), ``scet_pulse_indices`` (a JSON array in a string: the global
+indices of the pulses rendered into the frame, those that light visible rows) and
+``scet_strobe_times_s`` (a JSON array in a string: their instants, the pulse centres at which
+the eye pose was taken; exact float64 values). :func:`read_exr` reads all of it back.
+
+Each line of ``labels.jsonl`` is one strobe that lights visible rows of one frame, in frame then
+pulse order::
+
+    frame, strobe          frame index and global pulse index j
+    time_s                 strobe instant (the instant the eye pose is taken at), s
+    pulse_start_s          s_j, the pulse's rising edge, s
+    first_row, last_row    first and last visible rows the pulse lights at all (inclusive)
+    full_rows              [start, stop): visible rows that collect the whole pulse (may be empty)
+    target_m               gaze target (x, y, z), m
+    yaw_rad, pitch_rad     eye rotation (Fick angles), rad
+    cornea_center_m        cornea centre (x, y, z), m
+    glints_px              per light, the ground-truth glint pixel [u, v] (OpenCV pixel-centre
+                           convention), or null where the reflection does not exist
+    glints_visible         per light, whether the glint is on the corneal cap and seen
+
+Labels are computed from the setup, the trajectory and the banding model
+(:func:`estimator.banding.band_layout`, :func:`scet_render.simulate.ground_truth_glints`), so
+they need no rendering and are rebuilt whole at the end of every run.
+
+Writing is crash-safe and resumable. Every file is written to ``<name>.partial`` in its own
+folder and moved into place with :func:`os.replace`; a frame counts as done when both its EXR
+and PNG exist. All randomness of frame f derives from ``SeedSequence([seed, stream, f])``, so a
+run that is killed at any point and started again with the same arguments renders only the
+missing frames and ends with a dataset byte-identical to an uninterrupted run. A run pointed at
+a folder that holds a different dataset (other scene, seed, frame count, ...) refuses with a
+:class:`DatasetMismatchError` that names every differing entry; it never overwrites.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from estimator.banding import strobe_instant
+from estimator.formats import atomic_file, atomic_write, frame_name
+from estimator.setup import Setup
+from ..motion import FixationalNoise, Trajectory, fixation_sequence, saccade_sequence
+from ..render import SensorModel
+from .format import FIXATION_S, FORMAT, FRAMES_DIR, GRID_COLS, GRID_ROWS, LABELS_NAME, MANIFEST_NAME, RenderSummary, SACCADE_FIXATION_RANGE_S, VERSION, _STREAM_RENDER, _STREAM_SENSOR, _STREAM_TRAJECTORY, _check_int, _check_kind, _exr, counts_png
+from .labels import frame_labels, visible_bands
+from .manifest import _compare_manifests, _frame_done, _manifest, _manifest_bytes, _prepare_folder, _scene_text
+
+
+
+# --------------------------------------------------------------------------- trajectories
+
+
+def dataset_trajectory(setup: Setup, kind: str, frames: int, seed: int) -> Trajectory:
+    """The eye motion of a dataset: seeded, on the setup's screen, covering every frame.
+
+    Parameters
+    ----------
+    setup : Setup
+    kind : {"fixations", "saccades", "grid"}
+        ``"fixations"``: the 24 x 15 grid cells in a seeded random order, :data:`FIXATION_S`
+        each; ``"saccades"``: uniformly random screen points held for random times in
+        :data:`SACCADE_FIXATION_RANGE_S`; ``"grid"``: the 24 x 15 cells row by row from the top
+        left (repeated if needed), :data:`FIXATION_S` each. Main-sequence saccades join the
+        fixations; every fixation carries seeded fixational drift and tremor.
+    frames : int
+        Frames to cover: the trajectory lasts at least (frames + 1) Δt.
+    seed : int
+
+    Returns
+    -------
+    Trajectory
+    """
+    kind = _check_kind(kind)
+    frames = _check_int("frames", frames, 1)
+    seed = _check_int("seed", seed, 0)
+    gen = np.random.default_rng(np.random.SeedSequence([seed, _STREAM_TRAJECTORY]))
+    needed_s = (frames + 1) * setup.sensor.frame_period_s
+    eye, screen, noise = setup.eye, setup.screen, FixationalNoise()
+    grid = screen.grid(GRID_COLS, GRID_ROWS)
+    if kind == "saccades":
+        n = math.ceil(needed_s / SACCADE_FIXATION_RANGE_S[0]) + 1
+        (x0, x1), (y0, y1) = screen.x_range_m, screen.y_range_m
+        targets = np.stack([gen.uniform(x0, x1, n), gen.uniform(y0, y1, n),
+                            np.full(n, screen.z_m)], axis=-1)
+        return saccade_sequence(eye, targets, gen, SACCADE_FIXATION_RANGE_S, noise=noise)
+    n = math.ceil(needed_s / FIXATION_S) + 1
+    if kind == "fixations":
+        order = np.concatenate([gen.permutation(len(grid)) for _ in range(-(-n // len(grid)))])
+    else:
+        order = np.arange(n) % len(grid)
+    return fixation_sequence(eye, grid[order[:n]], FIXATION_S, gen, noise=noise)
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def render_dataset(
+    setup: Setup,
+    out_dir,
+    *,
+    frames: int,
+    spp: int = 16,
+    trajectory: str = "fixations",
+    seed: int = 0,
+    variant: str | None = None,
+    cornea: str = "dielectric",
+    sensor: SensorModel | None = None,
+    scene_text: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> RenderSummary:
+    """Render a banded-frame dataset (or finish an interrupted one) into ``out_dir``.
+
+    Parameters
+    ----------
+    setup : Setup
+        The system to render; it also fixes the image size and the strobe timing.
+    out_dir : str or Path
+        Dataset folder: new, empty, or holding an unfinished or finished run of the very same
+        arguments (which is then completed; a finished one is left as it is).
+    frames : int
+        Number of frames, >= 1.
+    spp : int
+        Samples per pixel of the renderer.
+    trajectory : {"fixations", "saccades", "grid"}
+        Eye motion, see :func:`dataset_trajectory`.
+    seed : int
+        Seeds the trajectory, the renderer and the sensor noise (>= 0).
+    variant : str, optional
+        Mitsuba variant; None lets the renderer choose (the choice is recorded).
+    cornea : str
+        Cornea material of the renderer (``"dielectric"``, or what the renderer supports).
+    sensor : SensorModel, optional
+        Default: :meth:`SensorModel.from_sensor` of ``setup.sensor``.
+    scene_text : str, optional
+        The scene TOML; default: read from ``setup.source`` (its sha256 must match
+        ``setup.source_sha256``).
+    progress : callable, optional
+        Called as ``progress(done, total)`` once at the start and after every frame (the CLI
+        shows a progress bar with it; this function never prints).
+
+    Returns
+    -------
+    RenderSummary
+
+    Notes
+    -----
+    "The same arguments" means the same manifest: scene text, setup fingerprint, frames, spp,
+    trajectory, seed, cornea, sensor parameters, the Mitsuba variant (as resolved) and the
+    renderer's settings, and the same versions of scet, numpy, Mitsuba, Dr.Jit, OpenEXR and
+    OpenCV (any of which can change the bytes). ``progress`` is not part of it. A run against a
+    finished dataset checks the manifest, rewrites nothing but an identical ``labels.jsonl``
+    and does not start the renderer.
+
+    Raises
+    ------
+    DatasetMismatchError
+        ``out_dir`` holds a dataset made with other arguments, or other software.
+    DatasetError
+        ``out_dir`` holds something that is not a SCET dataset.
+    ValueError
+        Bad arguments.
+    """
+    frames = _check_int("frames", frames, 1)
+    spp = _check_int("spp", spp, 1)
+    seed = _check_int("seed", seed, 0)
+    kind = _check_kind(trajectory)
+    if not isinstance(cornea, str):
+        raise ValueError(f"cornea must be a string, got {cornea!r}")
+    if variant is not None and not isinstance(variant, str):
+        raise ValueError(f"variant must be a string or None, got {variant!r}")
+    sensor = SensorModel.from_sensor(setup.sensor) if sensor is None else sensor
+    if not isinstance(sensor, SensorModel):
+        raise ValueError(f"sensor must be a SensorModel, got {type(sensor).__name__}")
+    text = _scene_text(setup, scene_text)
+    out = Path(out_dir)
+
+    manifest = _manifest(setup, text, frames=frames, spp=spp, kind=kind, seed=seed,
+                         variant=variant, cornea=cornea, sensor=sensor)
+    existing = _prepare_folder(out)
+    if existing is not None:
+        # The variant that None resolves to is known only once the renderer exists.
+        _compare_manifests(existing, manifest, out / MANIFEST_NAME, before_renderer=True,
+                           ignore_variant=variant is None)
+    frames_dir = out / FRAMES_DIR
+    done = [f for f in range(frames) if _frame_done(frames_dir, f)]
+    todo = [f for f in range(frames) if f not in set(done)]
+    traj = dataset_trajectory(setup, kind, frames, seed)
+
+    if todo or existing is None:
+        renderer = _make_renderer(setup, spp=spp, variant=variant, cornea=cornea, seed=seed)
+        manifest["render"]["variant"] = renderer.variant
+        manifest["render"]["renderer"] = _renderer_settings(renderer)
+        if existing is None:
+            out.mkdir(parents=True, exist_ok=True)
+            atomic_write(out / MANIFEST_NAME, _manifest_bytes(manifest))
+        else:
+            _compare_manifests(existing, manifest, out / MANIFEST_NAME)
+    frames_dir.mkdir(exist_ok=True)
+
+    if progress is not None:
+        progress(len(done), frames)
+    labels = {}  # frame -> its labels, from the bands its render was checked against
+    for f in todo:
+        labels[f] = _render_frame(renderer, setup, sensor, traj, f, seed, frames_dir,
+                                  manifest["scene"]["sha256"])
+        done.append(f)
+        if progress is not None:
+            progress(len(done), frames)
+
+    lines = [json.dumps(label, allow_nan=False, separators=(",", ":"))
+             for f in range(frames)
+             for label in (labels[f] if f in labels else frame_labels(setup, traj, f))]
+    atomic_write(out / LABELS_NAME, "".join(line + "\n" for line in lines).encode("utf-8"))
+    return RenderSummary(out, tuple(todo), tuple(f for f in range(frames) if f not in set(todo)))
+
+
+def _render_frame(renderer, setup: Setup, sensor: SensorModel, traj: Trajectory, frame: int,
+                  seed: int, frames_dir: Path, scene_sha256: str) -> list[dict]:
+    """Render, check and write one frame; its labels, from the bands it was checked against."""
+
+    result = renderer.render_frame(traj, frame)
+    radiance = np.ascontiguousarray(result.radiance, dtype=np.float32)
+    shape = (setup.camera.height_px, setup.camera.width_px)
+    if radiance.shape != shape:
+        raise RuntimeError(f"renderer returned frame {frame} with shape {radiance.shape}, "
+                           f"expected {shape} (height, width)")
+    pulses = np.asarray(result.pulse_indices, dtype=np.int64)
+    times = np.asarray(result.pulse_times_s, dtype=np.float64)
+    bands = visible_bands(setup, frame)
+    want_times = strobe_instant(np.array([b.strobe_time_s for b in bands]), setup.strobe.pulse_s)
+    if (pulses.tolist() != [b.pulse_index for b in bands]
+            or not np.allclose(times, want_times, rtol=0.0, atol=1e-12)):
+        # The labels are computed from the banding model; they must describe what was rendered.
+        raise RuntimeError(f"frame {frame}: the renderer lit pulses {pulses.tolist()} at "
+                           f"{times.tolist()} s, the labels expect {[b.pulse_index for b in bands]}"
+                           f" at {want_times.tolist()} s")
+    dn = sensor.apply(radiance, np.random.SeedSequence([seed, _STREAM_SENSOR, frame]))
+    header = {
+        "compression": _exr().ZIP_COMPRESSION,
+        "type": _exr().scanlineimage,
+        "scet_format": FORMAT,
+        "scet_version": VERSION,
+        "scet_frame": int(frame),
+        "scet_scene_sha256": scene_sha256,
+        # OpenEXR has no attribute type for vectors of ints or doubles of any length (its
+        # Python binding maps 2- and 3-element arrays to V2/V3 types, longer ones only for
+        # float32), so both vectors are JSON text: exact and easy to read back.
+        "scet_pulse_indices": json.dumps(pulses.tolist()),
+        "scet_strobe_times_s": json.dumps(times.tolist()),
+    }
+    with atomic_file(frames_dir / frame_name(frame, "exr")) as tmp:
+        with _exr().File(header, {"Y": radiance}) as exr:
+            exr.write(str(tmp))
+    atomic_write(frames_dir / frame_name(frame, "png"), counts_png(dn, sensor.bit_depth))
+    return frame_labels(setup, traj, frame, bands)
+
+
+def _make_renderer(setup: Setup, *, spp: int, variant, cornea: str, seed: int):
+    from ..render import BandedRenderer
+
+    # The renderer derives every slice's sampler seed from (its seed, frame index, slice), so
+    # frame f renders the same whatever was rendered before it: resumed runs stay identical.
+    render_seed = int(np.random.SeedSequence([seed, _STREAM_RENDER]).generate_state(1)[0])
+    return BandedRenderer(setup, variant=variant, spp=spp, cornea=cornea, seed=render_seed)
+
+
+def _renderer_settings(renderer) -> dict:
+    """Everything the renderer chose or defaulted that shapes its output."""
+    options = renderer.options
+    return {
+        "seed": renderer.seed,
+        "ambient_spp": renderer.ambient_spp,
+        "blur_step_px": renderer.blur_step_px,
+        "max_ambient_instants": renderer.max_ambient_instants,
+        "scene_options": {name: getattr(options, name) for name in options.__slots__},
+    }
+
+
+# --------------------------------------------------------------------------- helpers

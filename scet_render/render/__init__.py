@@ -1,0 +1,46 @@
+"""Physically based renders with Mitsuba 3: the variant (``backend``), the eye scene
+(``scene``, ``meshes``, ``export``), the rolling-shutter strobe renderer (``rolling_shutter``)
+and the OV5647 sensor model (``sensor``). Mitsuba is imported lazily.
+"""
+
+from .backend import (
+    LLVM_MIN_VERSION, SUPPORTED_VARIANTS, VARIANT_ENV, LLVM_ENV, DEFAULT_LLVM_GLOBS,
+    VariantChoice, llvm_version, find_libllvm, gpu_available, choose_variant, activate,
+    is_jit_variant
+)
+from .export import export_mitsuba
+from .layout import (
+    DEFAULT_LIGHT_RADIANCE, DEFAULT_AMBIENT_RADIANCE, LID_CLEARANCE_M, SKIN_OVER_LID_M,
+    LID_MARGIN_RAD, PUPIL_OFFSET_M, FACE_BEHIND_CENTER_M, SCENE_UNITS_PER_M, FILM_TO_OPENCV_PX,
+    SCLERA_MASK_TEXELS, CORNEA_MODES, CORNEA_GEOMETRIES, CHANNEL_MODES, MOVING_KEYS,
+    SceneOptions, EyeLayout, eye_layout
+)
+from .meshes import cornea_mesh, eyelid_meshes, skin_mesh, sclera_opacity, eye_part_transforms
+from .rolling_shutter import (
+    SPEED_SAMPLES_PER_PERIOD, FrameRender, FramePlan, motion_instants, plan_frame,
+    BandedRenderer
+)
+from .scene import sensor_dict, SceneDescription, describe_scene, EyeScene
+from .sensor import (
+    CORNEA_FRESNEL_REFLECTANCE, REFERENCE_EMITTER_RADIANCE, GLINT_SATURATION_FRACTION,
+    OV5647_FULL_WELL_E, OV5647_READ_NOISE_E, OV5647_DARK_CURRENT_E_PER_S,
+    OV5647_CONVERSION_GAIN_E_PER_DN, OV5647_BLACK_LEVEL_DN, OV5647_ADC_BIT_DEPTH,
+    OV5647_SATURATION_E, DEFAULT_ELECTRONS_PER_RADIANCE, SensorModel
+)
+
+__all__ = [
+    "LLVM_MIN_VERSION", "SUPPORTED_VARIANTS", "VARIANT_ENV", "LLVM_ENV", "DEFAULT_LLVM_GLOBS",
+    "VariantChoice", "llvm_version", "find_libllvm", "gpu_available", "choose_variant",
+    "activate", "is_jit_variant", "export_mitsuba", "DEFAULT_LIGHT_RADIANCE",
+    "DEFAULT_AMBIENT_RADIANCE", "LID_CLEARANCE_M", "SKIN_OVER_LID_M", "LID_MARGIN_RAD",
+    "PUPIL_OFFSET_M", "FACE_BEHIND_CENTER_M", "SCENE_UNITS_PER_M", "FILM_TO_OPENCV_PX",
+    "SCLERA_MASK_TEXELS", "CORNEA_MODES", "CORNEA_GEOMETRIES", "CHANNEL_MODES", "MOVING_KEYS",
+    "SceneOptions", "EyeLayout", "eye_layout", "cornea_mesh", "eyelid_meshes", "skin_mesh",
+    "sclera_opacity", "eye_part_transforms", "SPEED_SAMPLES_PER_PERIOD", "FrameRender",
+    "FramePlan", "motion_instants", "plan_frame", "BandedRenderer", "sensor_dict",
+    "SceneDescription", "describe_scene", "EyeScene", "CORNEA_FRESNEL_REFLECTANCE",
+    "REFERENCE_EMITTER_RADIANCE", "GLINT_SATURATION_FRACTION", "OV5647_FULL_WELL_E",
+    "OV5647_READ_NOISE_E", "OV5647_DARK_CURRENT_E_PER_S", "OV5647_CONVERSION_GAIN_E_PER_DN",
+    "OV5647_BLACK_LEVEL_DN", "OV5647_ADC_BIT_DEPTH", "OV5647_SATURATION_E",
+    "DEFAULT_ELECTRONS_PER_RADIANCE", "SensorModel"
+]

@@ -1,0 +1,119 @@
+"""The rendered eye's options and layout: materials and geometry choices
+(:class:`SceneOptions`), the derived sizes of its parts and lid margins (:func:`eye_layout`),
+and the scene constants (units, radiances, clearances) with the measurements behind them.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimator.setup import Setup
+
+
+#: Strobe light source radiance and ambient environment radiance (W sr^-1 m^-2, near-IR).
+#: With 40 lights of 0.2 mm at ~30 mm, skin and sclera under the strobe read ~1, a dielectric
+#: glint ~25, and the ambient adds ~0.07 to them over a 1 ms exposure (see rolling_shutter).
+DEFAULT_LIGHT_RADIANCE = 1000.0
+DEFAULT_AMBIENT_RADIANCE = 0.01
+#: Gap between the corneal apex sphere and the eyelid shell, and between lids and skin (m).
+LID_CLEARANCE_M = 0.6e-3
+SKIN_OVER_LID_M = 0.4e-3
+#: Eyelid margin beyond the cornea at full openness (rad), and the pupil's offset in front of
+#: the iris (m: far below a pixel, far above float32 rounding at 1 cm).
+LID_MARGIN_RAD = math.radians(5.0)
+PUPIL_OFFSET_M = 20e-6
+#: The face plane (a 10 cm disk facing -z) lies this far behind the rotation centre (m), past
+#: the rim of the skin shell (13 mm radius, out to 100 deg from the gaze: 2.3 mm behind).
+FACE_BEHIND_CENTER_M = 3e-3
+#: Mitsuba scene units per metre: scenes are built in centimetres. Mitsuba offsets every
+#: spawned ray by ~9e-5 (1 + |p|) scene units to avoid self-intersection: 89 µm in metres,
+#: which moves glints by 0.4 px at 1300 px focal length, but 2 µm (0.01 px) in centimetres.
+#: Centimetres also keep the eye's sizes near 1, where float32 keeps Mitsuba's check of a
+#: sphere's uniform scale (1e-6 absolute) quiet.
+SCENE_UNITS_PER_M = 100.0
+#: Mitsuba film pixel i covers [i, i + 1); OpenCV's pixel i is centred on i (DESIGN.md).
+FILM_TO_OPENCV_PX = -0.5
+#: Rows of the sclera's opacity mask over the polar angle 0..pi: 0.022 deg, 4 µm on the eyeball.
+SCLERA_MASK_TEXELS = 8192
+CORNEA_MODES = ("dielectric", "conductor")
+CORNEA_GEOMETRIES = ("sphere", "mesh")
+CHANNEL_MODES = ("split", "grey")
+#: Scene parameters moved by :meth:`EyeScene.set_pose`.
+MOVING_KEYS = ("cornea.to_world", "sclera.to_world", "iris.to_world", "pupil.to_world",
+               "cornea.vertex_positions", "cornea.vertex_normals")
+
+
+@dataclass(frozen=True, slots=True)
+class SceneOptions:
+    """Materials, lighting and geometry choices of a rendered scene (albedos are near-IR)."""
+
+    cornea: str = "dielectric"
+    cornea_geometry: str = "sphere"
+    eyelid_openness: float | None = 1.0
+    light_radiance: float = DEFAULT_LIGHT_RADIANCE
+    ambient_radiance: float = DEFAULT_AMBIENT_RADIANCE
+    channels: str = "split"
+    pupil_radius_m: float = 2.0e-3
+    sclera_albedo: float = 0.7
+    iris_albedo: float = 0.3
+    pupil_albedo: float = 0.02
+    skin_albedo: float = 0.6
+    max_depth: int = 6
+    cornea_edge_m: float = 0.15e-3
+
+    def __post_init__(self):
+        for name, allowed in (("cornea", CORNEA_MODES), ("cornea_geometry", CORNEA_GEOMETRIES),
+                              ("channels", CHANNEL_MODES)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
+        o = self.eyelid_openness
+        if o is not None and not (math.isfinite(o) and 0.0 <= o <= 1.0):
+            raise ValueError(f"eyelid_openness must be None (no eyelids) or in [0, 1], got {o!r}")
+        for name in ("light_radiance", "ambient_radiance"):
+            v = getattr(self, name)
+            if not (math.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be finite and >= 0, got {v!r}")
+        for name in ("sclera_albedo", "iris_albedo", "pupil_albedo", "skin_albedo"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must lie in [0, 1], got {getattr(self, name)!r}")
+        if not (self.pupil_radius_m > 0 and self.cornea_edge_m > 0 and self.max_depth >= 2):
+            raise ValueError("pupil_radius_m and cornea_edge_m must be > 0 and max_depth >= 2")
+
+
+@dataclass(frozen=True, slots=True)
+class EyeLayout:
+    """Derived eye dimensions (m, rad), all along the gaze axis from the rotation centre."""
+
+    limbus_plane_m: float
+    limbus_radius_m: float
+    sclera_radius_m: float
+    cap_angle_rad: float
+    lid_radius_m: float
+    skin_radius_m: float
+    lid_upper_rad: float
+    lid_lower_rad: float
+    skin_hole_rad: float
+
+
+def eye_layout(setup: Setup, options: SceneOptions = SceneOptions()) -> EyeLayout:
+    """Sizes of the scene's eye parts, eyelid margins (elevations) and skin opening."""
+    eye = setup.eye
+    d_l = eye.cornea_offset_m + eye.cornea_radius_m - eye.limbus_depth_m
+    r_l = eye.limbus_radius_m
+    if d_l <= 0:
+        raise ValueError(f"{setup.name}: the limbus plane lies behind the rotation centre "
+                         f"(offset + radius - limbus depth = {d_l:.3g} m); no sclera fits")
+    cap = math.atan2(r_l, d_l)  # angular radius of the cornea seen from the rotation centre
+    lid_r = eye.cornea_offset_m + eye.cornea_radius_m + LID_CLEARANCE_M
+    yaw, pitch = eye.angles_toward(setup.screen.grid(9, 9, margin=0.0))
+    gaze_off_axis = np.arccos(np.clip(np.cos(yaw) * np.cos(pitch), -1.0, 1.0)).max()
+    up_open = min(float(pitch.max()) + cap + LID_MARGIN_RAD, math.radians(80.0))
+    low_open = max(float(pitch.min()) - cap - LID_MARGIN_RAD, math.radians(-80.0))
+    o = 1.0 if options.eyelid_openness is None else options.eyelid_openness
+    closed = 0.5 * (up_open + low_open)
+    return EyeLayout(d_l, r_l, math.hypot(d_l, r_l), cap, lid_r, lid_r + SKIN_OVER_LID_M,
+                     closed + o * (up_open - closed), closed + o * (low_open - closed),
+                     min(float(gaze_off_axis) + cap + 2 * LID_MARGIN_RAD, math.radians(85.0)))

@@ -1,0 +1,282 @@
+"""A Mitsuba 3 scene of one SCET :class:`~estimator.setup.Setup`: eye, lids, skin, lights, camera.
+
+Geometry (SI units, world frame of the SCET paper's Fig. 3, eye in primary position looking -z):
+
+* **cornea**: the sphere of radius r_c around the cornea centre (Sec. 2.1, Böhme's model), an
+  exact analytic sphere by default (glints land where the closed form says); with
+  ``cornea_geometry="mesh"`` a trimesh-built cap up to the limbus with radial vertex normals;
+* **sclera**: an analytic sphere around the rotation centre through the limbus circle whose
+  cap inside the limbus is cut away by an opacity mask (the sphere's polar texture coordinate
+  is the angle from the gaze). The cornea protrudes from it, and the sclera hides the rest of
+  the corneal sphere: only the cap in front of the limbus is ever seen;
+* **iris** (an analytic disk in the limbus plane, of the limbus radius) and **pupil** (a dark
+  disk 20 µm in front of it), seen through the cornea;
+* **eyelids** (optional, static meshes): two pieces of a shell around the eye above and below
+  elevation bands that ``eyelid_openness`` narrows; at 1 they clear the cornea, with 5 degrees
+  to spare, for every gaze at the screen. **Skin**: a shell with a round opening around them,
+  and a plane (the face) behind;
+* **lights**: one small spherical area emitter per light (``LightGroup.source_radius_m``); a
+  point light would be invisible in a mirror. **Ambient**: a constant near-IR environment;
+* **camera**: a perspective sensor with the Setup's intrinsics (:func:`sensor_dict` is the one
+  place where OpenCV's pixel-centre convention meets Mitsuba's film).
+
+Every moving part of the eye is analytic, so a new pose rebuilds Embree's BVH over a few hundred
+static triangles only (Mitsuba rebuilds every shape on any change, ~5 µs per triangle here) and
+the kernels read the new transforms from opaque variables: nothing recompiles.
+
+Channels: near-IR transport is monochrome, so the RGB variant's channels carry light groups.
+With ``channels="split"`` (the renderer's choice) the strobe lights emit in R and the ambient
+environment in G, and one render yields both the strobe-only and the ambient-only image. In that
+mode the dielectric cornea transmits no strobe light: strobe light reaching the iris through the
+cornea is a caustic that unidirectional path tracing samples as fireflies as bright as glints
+(about one sample in a thousand), so the iris and pupil are lit by the ambient light only.
+``channels="grey"`` renders everything white and physically complete (used for export).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from estimator.geometry import Camera
+from estimator.eye import eye_rotation_matrix
+from estimator.setup import Setup
+from .layout import (FACE_BEHIND_CENTER_M, SCENE_UNITS_PER_M, FILM_TO_OPENCV_PX, MOVING_KEYS, SceneOptions, EyeLayout, eye_layout)
+from .meshes import _GAZE_FRAME, _affine, _to_scene_units, _trimesh, cornea_mesh, eye_part_transforms, eyelid_meshes, sclera_opacity, skin_mesh
+
+
+def sensor_dict(camera: Camera, spp: int = 16) -> dict:
+    """Mitsuba ``perspective`` sensor with the camera's exact intrinsics and pose.
+
+    The single conversion between conventions (DESIGN.md): OpenCV pixel (u, v) is Mitsuba film
+    position (u + 0.5, v + 0.5); Mitsuba's camera frame is OpenCV's with x and y negated (x
+    left, y up, z forward). Mitsuba models square pixels only, so fx must equal fy.
+
+    Raises
+    ------
+    ValueError
+        When fx != fy (to 1e-9 relative).
+    """
+    if abs(camera.fx_px - camera.fy_px) > 1e-9 * camera.fx_px:
+        raise ValueError(f"Mitsuba's perspective sensor needs square pixels; got fx = "
+                         f"{camera.fx_px} px, fy = {camera.fy_px} px")
+    W, H = camera.width_px, camera.height_px
+    # Principal point in normalised film coordinates, measured from the film centre.
+    film_cx = (camera.cx_px - FILM_TO_OPENCV_PX) / W
+    film_cy = (camera.cy_px - FILM_TO_OPENCV_PX) / H
+    to_world = np.eye(4)
+    to_world[:3, 0] = -camera.rotation[0]
+    to_world[:3, 1] = -camera.rotation[1]
+    to_world[:3, 2] = camera.rotation[2]
+    to_world[:3, 3] = camera.position_m * SCENE_UNITS_PER_M
+    return {
+        "type": "perspective", "fov_axis": "x",
+        "fov": math.degrees(2.0 * math.atan(W / (2.0 * camera.fx_px))),
+        "principal_point_offset_x": 0.5 - film_cx, "principal_point_offset_y": 0.5 - film_cy,
+        "near_clip": 1e-4 * SCENE_UNITS_PER_M, "far_clip": 100.0 * SCENE_UNITS_PER_M,
+        "to_world": to_world,
+        "sampler": {"type": "independent", "sample_count": int(spp)},
+        "film": {"type": "hdrfilm", "width": W, "height": H, "rfilter": {"type": "box"},
+                 "pixel_format": "rgb", "component_format": "float32"},
+    }
+
+
+# --------------------------------------------------------------------------- description
+
+
+def _rgb(values) -> dict:
+    return {"type": "rgb", "value": [float(v) for v in values]}
+
+
+def _diffuse(albedo: float, twosided: bool = False) -> dict:
+    bsdf = {"type": "diffuse", "reflectance": _rgb([albedo] * 3)}
+    return {"type": "twosided", "bsdf": bsdf} if twosided else bsdf
+
+
+def _cornea_bsdf(setup: Setup, options: SceneOptions) -> dict:
+    n = setup.eye.refractive_index
+    if options.cornea == "conductor":
+        # A mirror scaled by the normal-incidence Fresnel reflectance: exact glint geometry
+        # from every sample (a dielectric reflects only ~2.5 % of them).
+        f0 = ((n - 1.0) / (n + 1.0)) ** 2
+        return {"type": "conductor", "material": "none", "specular_reflectance": _rgb([f0] * 3)}
+    transmit = (0.0, 1.0, 1.0) if options.channels == "split" else (1.0, 1.0, 1.0)
+    return {"type": "dielectric", "int_ior": n, "ext_ior": 1.0,
+            "specular_transmittance": _rgb(transmit)}
+
+
+@dataclass(frozen=True, slots=True)
+class SceneDescription:
+    """A scene as plain data.
+
+    Lengths are in scene units (centimetres, :data:`SCENE_UNITS_PER_M`). ``objects`` is in
+    Mitsuba's dict layout with (4, 4) numpy transforms; every
+    ``{"type": "ply", "filename": "meshes/<id>.ply"}`` has its trimesh mesh in ``meshes[<id>]``
+    and every ``{"type": "bitmap", "filename": "textures/<id>.png"}`` its (rows, cols) array in
+    ``textures[<id>]``.
+    """
+
+    objects: dict
+    meshes: dict
+    textures: dict
+    layout: EyeLayout
+
+
+def describe_scene(setup: Setup, options: SceneOptions = SceneOptions(), *, spp: int = 16,
+                   yaw_rad: float = 0.0, pitch_rad: float = 0.0) -> SceneDescription:
+    """The scene of a Setup with the eye at a pose (see the module docstring)."""
+    layout = eye_layout(setup, options)
+    split = options.channels == "split"
+    T = eye_part_transforms(setup, layout, yaw_rad, pitch_rad, options.pupil_radius_m)
+    cornea_bsdf = _cornea_bsdf(setup, options)
+    objects = {
+        "type": "scene",
+        "integrator": {"type": "path", "max_depth": int(options.max_depth)},
+        "camera": sensor_dict(setup.camera, spp),
+        "sclera": {"type": "sphere", "to_world": T["sclera"], "bsdf": {
+            "type": "mask", "bsdf": _diffuse(options.sclera_albedo),
+            "opacity": {"type": "bitmap", "filename": "textures/sclera_opacity.png", "raw": True,
+                        "filter_type": "nearest"}}},
+        "iris": {"type": "disk", "to_world": T["iris"], "bsdf": _diffuse(options.iris_albedo)},
+        "pupil": {"type": "disk", "to_world": T["pupil"], "bsdf": _diffuse(options.pupil_albedo)},
+    }
+    # The face beyond the skin shell: a plane just behind the shell's rim, facing the camera.
+    face_at = setup.eye.rotation_center_m + np.array([0.0, 0.0, FACE_BEHIND_CENTER_M])
+    objects["face"] = {"type": "disk",
+                       "to_world": _to_scene_units(_affine(_GAZE_FRAME, face_at, (0.1, 0.1, 1.0))),
+                       "bsdf": _diffuse(options.skin_albedo, twosided=True)}
+    meshes = {"skin": skin_mesh(setup, layout)}
+    if options.eyelid_openness is not None:
+        meshes["lid_upper"], meshes["lid_lower"] = eyelid_meshes(setup, layout)
+    for name in meshes:
+        objects[name] = {"type": "ply", "filename": f"meshes/{name}.ply", "face_normals": False,
+                         "bsdf": _diffuse(options.skin_albedo, twosided=True)}
+    if options.cornea_geometry == "mesh":
+        mesh = cornea_mesh(setup, options.cornea_edge_m)
+        R = eye_rotation_matrix(yaw_rad, pitch_rad)
+        c_e = setup.eye.rotation_center_m
+        meshes["cornea"] = _trimesh((mesh.vertices - c_e) @ R.T + c_e, mesh.faces,
+                                    np.asarray(mesh.vertex_normals) @ R.T)
+        objects["cornea"] = {"type": "ply", "filename": "meshes/cornea.ply",
+                             "face_normals": False, "bsdf": cornea_bsdf}
+    else:
+        objects["cornea"] = {"type": "sphere", "to_world": T["cornea"], "bsdf": cornea_bsdf}
+    L = options.light_radiance
+    radii = [g.source_radius_m for g in setup.lights.groups for _ in range(g.count)]
+    for i, (radius, p) in enumerate(zip(radii, setup.lights_world_m)):
+        objects[f"light_{i:03d}"] = {
+            "type": "sphere", "center": [float(c * SCENE_UNITS_PER_M) for c in p],
+            "radius": float(radius * SCENE_UNITS_PER_M),
+            "emitter": {"type": "area", "radiance": _rgb((L, 0, 0) if split else (L, L, L))}}
+    A = options.ambient_radiance
+    if A > 0:
+        objects["ambient"] = {"type": "constant",
+                              "radiance": _rgb((0, A, 0) if split else (A, A, A))}
+    for mesh in meshes.values():
+        mesh.apply_scale(SCENE_UNITS_PER_M)
+    return SceneDescription(objects, meshes, {"sclera_opacity": sclera_opacity(layout)}, layout)
+
+
+# --------------------------------------------------------------------------- loading
+
+
+def _to_mitsuba(value, mi, desc: SceneDescription, name: str = ""):
+    """Plain description -> ``mi.load_dict`` input (transforms, in-memory meshes, textures)."""
+    if isinstance(value, np.ndarray) and value.shape == (4, 4):
+        return mi.ScalarTransform4f(value)
+    if not isinstance(value, dict):
+        return value
+    kind = value.get("type")
+    if kind == "bitmap":
+        data = desc.textures[Path(value["filename"]).stem]
+        rest = {k: v for k, v in value.items() if k != "filename"}
+        return {**rest, "data": mi.TensorXf(np.ascontiguousarray(data[..., None]))}
+    if kind == "ply":
+        m = desc.meshes[name]
+        props = mi.Properties()
+        props["bsdf"] = mi.load_dict(_to_mitsuba(value["bsdf"], mi, desc))
+        mesh = mi.Mesh(name, len(m.vertices), len(m.faces), props=props, has_vertex_normals=True)
+        p = mi.traverse(mesh)
+        # Buffer types differ between variants (Float vs ArrayXf): reuse the mesh's own.
+        for key, data, dtype in (("vertex_positions", m.vertices, np.float32),
+                                 ("faces", m.faces, np.uint32),
+                                 ("vertex_normals", m.vertex_normals, np.float32)):
+            p[key] = type(p[key])(np.asarray(data, dtype).ravel())
+        p.update()
+        return mesh
+    return {k: _to_mitsuba(v, mi, desc, k) for k, v in value.items()}
+
+
+class EyeScene:
+    """A loaded Mitsuba scene whose eye moves by Fick angles without recompiling kernels.
+
+    The Mitsuba scene is in centimetres (:data:`SCENE_UNITS_PER_M`); radiance does not depend
+    on the unit of length, so images are those of the metre-scale Setup.
+
+    Parameters
+    ----------
+    setup : Setup
+    options : SceneOptions
+    spp : int
+        Samples per pixel of the scene's sensor (the default of ``mi.render``).
+    mi : module, optional
+        The ``mitsuba`` module with a variant set; default :func:`scet_render.render.backend.activate`.
+
+    Attributes
+    ----------
+    scene, sensor, integrator
+        Mitsuba objects.
+    layout : EyeLayout
+    pose : (float, float)
+        Current (yaw_rad, pitch_rad).
+    """
+
+    def __init__(self, setup: Setup, options: SceneOptions = SceneOptions(), *, spp: int = 16,
+                 mi=None):
+        if mi is None:
+            from .backend import activate
+
+            mi = activate()
+        self.mi, self.setup, self.options = mi, setup, options
+        desc = describe_scene(setup, options, spp=spp)
+        self.layout = desc.layout
+        self.scene = mi.load_dict(_to_mitsuba(desc.objects, mi, desc))
+        self.sensor = self.scene.sensors()[0]
+        self.integrator = self.scene.integrator()
+        params = mi.traverse(self.scene)
+        params.keep([k for k in MOVING_KEYS if k in params])
+        self._params = params
+        mesh = desc.meshes.get("cornea")
+        self._center = setup.eye.rotation_center_m * SCENE_UNITS_PER_M
+        self._cornea_rest = None if mesh is None else (
+            mesh.vertices - self._center, np.asarray(mesh.vertex_normals))
+        # Write the primary pose once through set_pose, so that every pose's parameters come
+        # from the same code path (the loaded ones differ in the last float32 bit).
+        self.pose = (math.nan, math.nan)
+        self.set_pose(0.0, 0.0)
+
+    def set_pose(self, yaw_rad: float, pitch_rad: float) -> bool:
+        """Move cornea, sclera, iris and pupil to an eye pose; False when nothing changed."""
+        pose = (float(yaw_rad), float(pitch_rad))
+        if not all(math.isfinite(a) for a in pose):
+            raise ValueError(f"eye pose must be finite, got {pose}")
+        if pose == self.pose:
+            return False
+        mi, p = self.mi, self._params
+        T = eye_part_transforms(self.setup, self.layout, *pose, self.options.pupil_radius_m)
+        for name, M in T.items():
+            if f"{name}.to_world" in p:
+                p[f"{name}.to_world"] = mi.ScalarTransform4f(M)
+        if self._cornea_rest is not None:
+            R = eye_rotation_matrix(*pose)
+            v, n = self._cornea_rest
+            v_world = v @ R.T + self._center
+            for key, data in (("cornea.vertex_positions", v_world), ("cornea.vertex_normals",
+                                                                     n @ R.T)):
+                p[key] = type(p[key])(np.asarray(data, np.float32).ravel())
+        p.update()
+        self.pose = pose
+        return True

@@ -1,0 +1,16 @@
+"""``scet validate``: render, calibrate, track and compare with the ground truth and
+the feature-level simulator. ``run`` (the run), ``report`` (``validation.md``).
+"""
+
+from .config import (
+    IDENTITY_RADIUS_PX, ValidationConfig, QUICK, FULL, ValidationRow, ValidationResult,
+    SIM_REPEATS
+)
+from .report import table_markdown, prior_table_markdown
+from .run import geometric_from, run_validation
+
+__all__ = [
+    "IDENTITY_RADIUS_PX", "ValidationConfig", "QUICK", "FULL", "ValidationRow",
+    "ValidationResult", "SIM_REPEATS", "table_markdown", "prior_table_markdown",
+    "geometric_from", "run_validation"
+]
