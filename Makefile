@@ -1,16 +1,20 @@
 # SCET: `make demo` runs the main job on the default scene, `make test` runs the test suite.
 # Both set everything up first: a virtual environment in .venv with the package and all its
-# extras, and (as root, on Debian) libllvm19 for Mitsuba's LLVM backend.
+# extras, and (as root, on Debian) libllvm19 for Mitsuba's LLVM backend. `make test-base` runs
+# the estimator's tests in a second environment, .venv-base, with the base package alone.
 
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.scet-installed
+BASE_VENV  ?= .venv-base
+BASE_PY    := $(BASE_VENV)/bin/python
+BASE_STAMP := $(BASE_VENV)/.scet-installed
 PYTEST_ARGS ?=
 # Small matrices only: threaded BLAS on 2 cores oversubscribes (measured 40x slower joint fits).
 export OPENBLAS_NUM_THREADS ?= 1
 
-.PHONY: setup demo test test-slow bench clean
+.PHONY: setup demo test test-base test-slow bench clean
 
 setup: $(STAMP)
 
@@ -30,6 +34,22 @@ test: $(STAMP)
 	@$(PY) -m pytest -m "not slow" $(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "error: pytest collected no tests" >&2; exit 1; fi; exit $$rc
 
+# The base package and its test tools only (the 'test' extra), isolated from .venv and from
+# PYTHONPATH: the estimator runs on a Raspberry Pi without the renderer or Numba.
+$(BASE_STAMP): pyproject.toml
+	rm -rf $(BASE_VENV)
+	$(PYTHON) -m venv $(BASE_VENV)
+	$(BASE_PY) -m pip install -q --upgrade pip
+	$(BASE_PY) -m pip install -q -e '.[test]'
+	touch $(BASE_STAMP)
+
+# tests/estimator on the base install. SCET_BASE_ONLY=1 stops it if a module of the render or
+# fast extras can be imported there, and refuses imports of scet_render (tests/conftest.py).
+test-base: $(BASE_STAMP)
+	@env -u PYTHONPATH SCET_BASE_ONLY=1 $(BASE_PY) -m pytest tests/estimator -m "not slow" \
+	$(PYTEST_ARGS); rc=$$?; \
+	if [ $$rc -eq 5 ]; then echo "error: pytest collected no tests" >&2; exit 1; fi; exit $$rc
+
 test-slow: $(STAMP)
 	$(PY) -m pytest -m slow $(PYTEST_ARGS)
 
@@ -40,4 +60,4 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_render.py
 
 clean:
-	rm -rf $(VENV) build *.egg-info .pytest_cache .hypothesis
+	rm -rf $(VENV) $(BASE_VENV) build *.egg-info .pytest_cache .hypothesis

@@ -11,7 +11,7 @@ from estimator.cornea import FitProblem, fit_cornea
 from estimator.geometry import RigidPose
 from estimator.metrics import gaze_accuracy, light_position_error_m
 from estimator.scene import load_scene
-from scet_render.simulate import parse_targets, simulate_glints
+from tests.estimator.simulated import screen_targets, simulate_glints
 
 # Tolerances (units in the names), each with its reason.
 #: Exact cornea centres: the law-of-sines iteration stops at c_e steps below 1e-13 m and the
@@ -47,7 +47,7 @@ def true_correction(grid):
 
 @pytest.fixture(scope="module")
 def targets25(grid):
-    return parse_targets("calib:5x5", grid)
+    return screen_targets("calib:5x5", grid)
 
 
 @pytest.fixture(scope="module")
@@ -213,7 +213,7 @@ def arc_fits(arc):
     problem = FitProblem(arc.camera, arc.lights_world_m, arc.eye.cornea_radius_m)
     out = {}
     for spec in ("calib:3x3", "calib:5x5", "grid:24x15"):
-        T = parse_targets(spec, arc)
+        T = screen_targets(spec, arc)
         obs = simulate_glints(arc, T)
         out[spec] = (fit_cornea(problem, obs.glints_px, obs.visible, arc.eye.cornea_center(0, 0)).center_m, T)
     return out
@@ -258,7 +258,7 @@ def test_eq1_from_a_symmetric_3x3_grid_is_degenerate(arc, arc_fits):
 
 
 def test_eq1_from_an_asymmetric_3x3_grid_is_determined(arc):
-    T = parse_targets("calib:3x3", arc) + [0.03, 0.0, 0.0]
+    T = screen_targets("calib:3x3", arc) + [0.03, 0.0, 0.0]
     obs = simulate_glints(arc, T)
     m = fit_gaze_mapping(obs.cornea_center_m, T, "eq1")
     assert m.rank == 8
@@ -314,12 +314,12 @@ def test_distance_term_compensates_rig_translation(arc):
         c = fit_cornea(problem, obs.glints_px, obs.visible, c0).center_m  # in the nominal rig's frame
         return np.column_stack([c, distance_reading(np.full(len(targets), t), arc.distance_sensor, rng)])
 
-    T9, T25 = parse_targets("calib:3x3", arc), parse_targets("calib:5x5", arc)
+    T9, T25 = screen_targets("calib:3x3", arc), screen_targets("calib:5x5", arc)
     F = np.concatenate([observe(T9, t) for t in (0.0, -0.5e-3, -1e-3)])
     m_da = fit_gaze_mapping(F, np.tile(T9, (3, 1)), "quadratic_da")
     assert m_da.rank == 15  # the sensor's noise lifts the sphere redundancy
     m_q = fit_gaze_mapping(observe(T25, 0.0)[:, :3], T25, "quadratic", degenerate="min_norm")
-    G = parse_targets("grid:12x8", arc)
+    G = screen_targets("grid:12x8", arc)
     F_G = observe(G, -0.75e-3)
     acc_da = gaze_accuracy(m_da.predict(F_G), G, arc.eye.rotation_center_m).mean_deg
     acc_q = gaze_accuracy(m_q.predict(F_G[:, :3]), G, arc.eye.rotation_center_m).mean_deg

@@ -5,7 +5,7 @@ import pytest
 
 from estimator.cornea import FitProblem, fit_cornea
 from estimator.geometry import glint_jacobians, project_glints
-from scet_render.simulate import parse_targets, simulate_glints
+from tests.estimator.simulated import screen_targets, simulate_glints
 
 
 def test_glint_jacobians_match_finite_differences(setup):
@@ -25,7 +25,7 @@ def test_glint_jacobians_match_finite_differences(setup):
 
 @pytest.mark.parametrize("solver", ["lm", "trf"])
 def test_noise_free_glints_give_the_exact_centre(setup, problem, solver):
-    obs = simulate_glints(setup, parse_targets("grid:6x4", setup))
+    obs = simulate_glints(setup, screen_targets("grid:6x4", setup))
     fit = fit_cornea(problem, obs.glints_px, obs.visible, setup.eye.cornea_center(0, 0), solver=solver)
     assert fit.ok.all()
     # 1e-9 m: LM ends on a Gauss-Newton step below 1e-7 m, which leaves <= 4e4 /m x (1e-7 m)²
@@ -36,7 +36,7 @@ def test_noise_free_glints_give_the_exact_centre(setup, problem, solver):
 
 
 def test_lm_matches_the_papers_trf_on_noisy_glints(setup, problem):
-    obs = simulate_glints(setup, parse_targets("grid:6x4", setup), noise_px=0.5, rng=5)
+    obs = simulate_glints(setup, screen_targets("grid:6x4", setup), noise_px=0.5, rng=5)
     a = fit_cornea(problem, obs.glints_px, obs.visible, setup.eye.cornea_center(0, 0), solver="lm")
     b = fit_cornea(problem, obs.glints_px, obs.visible, setup.eye.cornea_center(0, 0), solver="trf")
     # Both reach the same least-squares minimum: 1e-8 m is 1e-3 of the noise-induced error.
@@ -49,14 +49,14 @@ def test_lm_matches_the_papers_trf_on_noisy_glints(setup, problem):
 
 
 def test_orbit_model_recovers_gaze_angles(setup, problem):
-    obs = simulate_glints(setup, parse_targets("grid:5x3", setup), noise_px=0.0)
+    obs = simulate_glints(setup, screen_targets("grid:5x3", setup), noise_px=0.0)
     fit = fit_cornea(problem, obs.glints_px, obs.visible, [0.0, 0.0], model="orbit")
     assert fit.ok.all()
     assert np.abs(fit.angles_rad - np.stack([obs.yaw_rad, obs.pitch_rad], 1)).max() < 1e-9
 
 
 def test_one_glint_is_enough_on_the_orbit(setup, problem):
-    obs = simulate_glints(setup, parse_targets("grid:4x3", setup))
+    obs = simulate_glints(setup, screen_targets("grid:4x3", setup))
     mask = np.zeros_like(obs.visible)
     mask[:, 20] = obs.visible[:, 20]
     fit = fit_cornea(problem, obs.glints_px, mask, [0.0, 0.0], model="orbit")
@@ -66,7 +66,7 @@ def test_one_glint_is_enough_on_the_orbit(setup, problem):
 
 
 def test_missing_glints_are_masks_and_too_few_is_nan(setup, problem):
-    obs = simulate_glints(setup, parse_targets("grid:3x2", setup))
+    obs = simulate_glints(setup, screen_targets("grid:3x2", setup))
     glints = obs.glints_px.copy()
     glints[0, 5:] = np.nan  # 5 glints left: still enough for 3 unknowns
     glints[1, 1:] = np.nan  # 1 glint: too few for the centre model (2 equations < 3 unknowns)
@@ -92,7 +92,7 @@ def test_bad_input(problem, setup):
 def test_lm_reaches_the_bounded_minimum_like_trf(setup, problem):
     """A bound that cuts off the free minimum: LM's active set must find the same constrained
     minimum as scipy's TRF (a clipped step alone stops up to 0.2 mm away)."""
-    obs = simulate_glints(setup, parse_targets("grid:6x4", setup), noise_px=0.5, rng=1)
+    obs = simulate_glints(setup, screen_targets("grid:6x4", setup), noise_px=0.5, rng=1)
     lo = [-1.0, -1.0, -1.0]
     hi = [1.0, 1.0, obs.cornea_center_m[:, 2].min() - 1e-4]
     a = fit_cornea(problem, obs.glints_px, obs.visible, setup.eye.cornea_center(0, 0), lower=lo, upper=hi)

@@ -5,7 +5,7 @@ import pytest
 
 from estimator.cornea import FitProblem, fit_cornea, fit_covariance
 from estimator.geometry import glint_jacobians
-from scet_render.simulate import parse_targets, simulate_glints
+from tests.estimator.simulated import screen_targets, simulate_glints
 
 #: m: the LM stops on a step below 1e-7 m, which leaves <= 4e-10 m (estimator.cornea.solve).
 SAME_MINIMUM_M = 1e-8
@@ -15,7 +15,7 @@ SAME_MINIMUM_RAD = 1e-8 / 4.25e-3
 
 @pytest.fixture(scope="module")
 def noisy(setup):
-    return simulate_glints(setup, parse_targets("grid:6x4", setup), noise_px=0.5, rng=np.random.default_rng(5))
+    return simulate_glints(setup, screen_targets("grid:6x4", setup), noise_px=0.5, rng=np.random.default_rng(5))
 
 
 def test_camera_frame_jacobian_is_the_world_one_rotated(setup):
@@ -127,7 +127,7 @@ def test_covariance_matches_the_scatter_of_repeated_fits(setup, problem):
     # 400 noisy realisations of one pose: the sample covariance of the fitted angles against
     # sigma² (JᵀJ)⁻¹. The variance of a variance estimate from 400 samples has a relative SD of
     # sqrt(2 / 400) = 7 %: 25 % is 3.5 SD.
-    T = np.repeat(parse_targets("grid:3x3", setup)[4:5], 400, axis=0)
+    T = np.repeat(screen_targets("grid:3x3", setup)[4:5], 400, axis=0)
     obs = simulate_glints(setup, T, noise_px=0.5, noise_model="gaussian", rng=np.random.default_rng(9))
     fit = fit_cornea(problem, obs.glints_px, obs.visible, np.zeros(2), model="orbit")
     emp = np.cov(fit.angles_rad.T)
@@ -145,7 +145,7 @@ def test_covariance_matches_the_scatter_of_repeated_fits(setup, problem):
 
 def test_large_batches_run_in_blocks_with_the_same_answers(setup, problem, monkeypatch):
     # The samples are independent: blocks of 200 must give exactly what one block gives.
-    T = parse_targets("grid:24x15", setup)
+    T = screen_targets("grid:24x15", setup)
     obs = simulate_glints(setup, T, noise_px=0.5, rng=np.random.default_rng(11))
     import estimator.cornea.solve as solve
     monkeypatch.setattr(solve, "_BLOCK", 200)

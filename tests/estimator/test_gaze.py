@@ -9,7 +9,7 @@ from estimator.gaze import (MISSES_SCREEN, REASONS, fit_cornea_centers, geometri
                            screen_intersection)
 from estimator.metrics import angular_error_deg, gaze_accuracy
 from estimator.scene import load_scene
-from scet_render.simulate import parse_targets, simulate_glints
+from tests.estimator.simulated import screen_targets, simulate_glints
 
 #: Degrees: with exact glints and ground-truth geometry the orbit fit stops at steps of ~1e-10 rad.
 EXACT_DEG = 1e-6
@@ -27,7 +27,7 @@ def setup():
 
 @pytest.fixture(scope="module")
 def grid(setup):
-    return parse_targets("grid:24x15", setup)
+    return screen_targets("grid:24x15", setup)
 
 
 @pytest.fixture(scope="module")
@@ -87,8 +87,8 @@ def test_failed_samples_are_nan_with_a_reason(setup, grid, noisy, truth):
     geo = geometric_gaze(setup, truth, glints, chain=True)
     assert list(geo.reason) == ["ok", TOO_FEW_GLINTS, "ok", "ok", "ok", "ok"]
     assert np.isnan(geo.point_m[1]).all() and np.isfinite(geo.point_m[[0, 2, 3, 4, 5]]).all()
-    C = simulate_glints(setup, parse_targets("calib:5x5", setup)).cornea_center_m
-    cal = truth.with_mappings(eq1_25=fit_gaze_mapping(C, parse_targets("calib:5x5", setup), "eq1"))
+    C = simulate_glints(setup, screen_targets("calib:5x5", setup)).cornea_center_m
+    cal = truth.with_mappings(eq1_25=fit_gaze_mapping(C, screen_targets("calib:5x5", setup), "eq1"))
     poly = polynomial_gaze(setup, cal, glints)
     assert list(poly.reason) == ["ok", TOO_FEW_GLINTS, "ok", "ok", TOO_FEW_GLINTS, "ok"]
     assert np.isnan(poly.screen_xy_m[[1, 4]]).all() and set(poly.reason) <= set(REASONS)
@@ -106,7 +106,7 @@ def test_axes_that_point_away_from_the_screen_miss_it():
 
 
 def test_polynomial_gaze_with_ground_truth_lighting(setup, grid, noisy, truth):
-    T = parse_targets("calib:5x5", setup)
+    T = screen_targets("calib:5x5", setup)
     calib = simulate_glints(setup, T, noise_px=0.5, rng=np.random.default_rng(4))
     centres = fit_cornea_centers(setup, truth, calib.glints_px, calib.visible).center_m
     cal = truth.with_mappings(eq1_25=fit_gaze_mapping(centres, T, "eq1"),
@@ -127,7 +127,7 @@ def test_gaze_rejects_incomplete_calibrations(setup, noisy, truth):
         geometric_gaze(setup, Calibration(), noisy.glints_px[:2])
     with pytest.raises(ValueError, match="no gaze mapping 'eq1_25'"):
         polynomial_gaze(setup, truth, noisy.glints_px[:2])
-    T = parse_targets("calib:5x5", setup)
+    T = screen_targets("calib:5x5", setup)
     C = simulate_glints(setup, T).cornea_center_m
     da = fit_gaze_mapping(np.column_stack([C, np.linspace(-1, 0, 25)]), T, "quadratic_da", degenerate="min_norm")
     with pytest.raises(ValueError, match="distance readings"):
@@ -144,7 +144,7 @@ def test_end_to_end_with_the_joint_calibration(setup, grid, noisy):
     grid_scene = load_scene("lighting_grid")
     L = grid_scene.lights_world_m
     rig = pose_correction(np.radians(1.0) * np.array([1.0, 1.0, 0.0]) / np.sqrt(2), [1e-3, 0, 0], L.mean(axis=0))
-    T = parse_targets("calib:5x5", grid_scene)
+    T = screen_targets("calib:5x5", grid_scene)
     frames = simulate_glints(grid_scene, T, noise_px=0.5, rng=np.random.default_rng(9), lights_world_m=rig.apply(L))
     light, orbit = calibrate_joint(grid_scene.camera, L, frames.glints_px, T, frames.visible,
                                    center0_m=grid_scene.eye.cornea_center(0, 0))

@@ -16,14 +16,15 @@ from estimator.glints import kernels as glint_kernels
 from estimator.glints.noise import _NoiseModel
 from estimator.glints import DetectionParams, GlintDetector, detect_glints
 from estimator.scene import load_scene
-from scet_render.simulate import ground_truth_glints
+from tests.estimator.simulated import ground_truth_glints
 from tests.estimator.test_glints import (  # noqa: F401 (pixel_path: a fixture)
     assert_same_detections,
     banded_frame,
+    needs_compiled_kernels,
     pixel_path,
 )
 
-pytest.importorskip("numba")
+pytestmark = needs_compiled_kernels
 
 
 @pytest.fixture(scope="module")

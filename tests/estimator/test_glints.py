@@ -10,16 +10,18 @@ and read noise, quantised to 10 bits over the 16 DN black level.
 
 from __future__ import annotations
 
+import importlib.util
 from dataclasses import FrozenInstanceError, replace
 
 import numpy as np
 import pytest
 from scipy.special import erf
 
+import estimator.glints.kernels as glint_kernels
 from estimator.banding import NO_PULSE, band_layout, first_lit_row, row_pulse_weights
 from estimator.glints import BLENDED, CUT_BY_BAND_EDGE, IMAGE_EDGE, NO_BAND, SATURATED, TWO_PULSES, DetectionParams, GlintDetections, GlintDetector, detect_glints
 from estimator.scene import load_scene
-from scet_render.simulate import ground_truth_glints
+from tests.estimator.simulated import ground_truth_glints
 
 # --------------------------------------------------------------------------- tolerances
 #: Centroid of an unsaturated spot away from band edges (px): the brief's bound. Noise-limited:
@@ -410,11 +412,20 @@ def assert_same_detections(a: GlintDetections, b: GlintDetections):
         assert np.array_equal(getattr(a, name), getattr(b, name), equal_nan=True), name
 
 
+#: Marks what needs the Numba kernels to run (:data:`estimator.glints.kernels.ENABLED`: Numba,
+#: the 'fast' extra, imports and its JIT is on). A missing Numba says "could not import", which
+#: ``SCET_REQUIRE_ALL=1`` turns into a failure.
+needs_compiled_kernels = pytest.mark.skipif(
+    not glint_kernels.ENABLED,
+    reason="could not import 'numba' (the 'fast' extra): the compiled glint kernels cannot run"
+    if importlib.util.find_spec("numba") is None
+    else "NUMBA_DISABLE_JIT is set: the compiled glint kernels do not run")
+
+
 @pytest.fixture
 def pixel_path(monkeypatch):
     """detect_glints with every component measured pixel by pixel in numpy (no compiled
     kernels, no patch stacks): the reference the faster paths are held to."""
-    import estimator.glints.kernels as glint_kernels
     import estimator.glints.spots as glint_spots
 
     def detect(*args, **kwargs):
@@ -425,16 +436,15 @@ def pixel_path(monkeypatch):
     return detect
 
 
-@pytest.fixture(params=["compiled", "patches-13", "patches-7"])
+@pytest.fixture(params=[pytest.param("compiled", marks=needs_compiled_kernels), "patches-13",
+                        "patches-7"])
 def fast_path(request, monkeypatch):
     """The two fast implementations of steps 2-4: the Numba kernels, and the numpy path that
     runs without Numba (spots whose grown box fits in ``_PATCH_PX`` on a stack of patches, the
     larger ones pixel by pixel; with 7 px, the larger spots of a frame go pixel by pixel)."""
-    import estimator.glints.kernels as glint_kernels
     import estimator.glints.spots as glint_spots
 
     if request.param == "compiled":
-        pytest.importorskip("numba")
         assert glint_kernels.ENABLED
     else:
         monkeypatch.setattr(glint_kernels, "ENABLED", False)
@@ -731,63 +741,3 @@ def test_bad_frame_index(setup, index):
 def test_bad_params(kwargs):
     with pytest.raises(ValueError):
         DetectionParams(**kwargs)
-
-
-# --------------------------------------------------------------------------- a real render
-
-
-@pytest.fixture(scope="module")
-def rendered():
-    """One paper_sim frame rendered by Mitsuba (BandedRenderer, every band at its strobe
-    instant; conductor cornea: exact glints at low spp) through the OV5647 sensor model."""
-    pytest.importorskip("mitsuba", reason="Mitsuba 3 is not installed (extra 'render')")
-    rolling_shutter = pytest.importorskip("scet_render.render.rolling_shutter")
-    from scet_render.render import SensorModel
-
-    class Fixation:
-        def angles_at(self, t):
-            t = np.asarray(t, dtype=float)
-            return np.full(t.shape, -0.12), np.full(t.shape, 0.04)
-
-    setup = load_scene("paper_sim")
-    renderer = rolling_shutter.BandedRenderer(setup, spp=32, cornea="conductor", seed=3)
-    frame = renderer.render_frame(Fixation(), 0)
-    dn = SensorModel.from_sensor(setup.sensor).apply(frame.radiance, np.random.default_rng(0))
-    g, vis, _ = ground_truth_glints(setup, -0.12, 0.04)
-    return setup, dn, np.flatnonzero(vis), g[vis], detect_glints(dn, setup, 0)
-
-
-@pytest.mark.slow  # the render takes 5-10 s on 2 cores: kept out of the fast suite
-def test_rendered_glints_land_on_the_closed_form(rendered):
-    """DESIGN.md: a rendered glint must land where the closed-form projection says, to a tenth
-    of a pixel (Mitsuba's i + 0.5 film convention converted once, in the renderer)."""
-    setup, dn, _, g, det = rendered
-    idx, dist = nearest(det, g)
-    assert (dist < MATCH_PX).all()
-    assert np.median(dist) < CENTROID_MEDIAN_PX  # measured 0.05 px
-    assert dist.max() < CENTROID_MAX_PX  # measured 0.10 px
-    # Pulses as the timing equations give them for each glint's row.
-    j, _, w = row_pulse_weights(setup.sensor, setup.strobe, 0, rows=np.rint(g[:, 1]))
-    single = (det.flags[idx] & TWO_PULSES) == 0
-    assert np.array_equal(det.strobe_index[idx][single], j[w.argmax(axis=1)][single])
-    # Monte Carlo noise on the bright sclera at 32 spp leaves a few single-pixel blobs.
-    assert len(det) - len(g) <= 8
-
-
-@pytest.mark.slow
-def test_rendered_bands_are_identified(rendered):
-    from estimator.matching import GlintMatcher
-
-    setup, _, lights, g, det = rendered
-    matcher = GlintMatcher(setup)
-    bands = {b.pulse_index: b for b in band_layout(setup.sensor, setup.strobe, 0)}
-    right = total = 0
-    for j in np.unique(det.strobe_index[det.strobe_index != NO_PULSE]):
-        band = det.of_strobe(int(j))
-        r = matcher.match(band.glints_px, (bands[j].first_row, bands[j].last_row))
-        d = np.linalg.norm(band.glints_px[:, None] - g[None], axis=-1)
-        truth = np.where(d.min(axis=1) < MATCH_PX, lights[d.argmin(axis=1)], -1)
-        if (truth >= 0).sum() >= 3:
-            right += (r.light_index == truth).sum()
-            total += len(band)
-    assert total >= 30 and right / total >= 0.99

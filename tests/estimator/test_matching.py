@@ -1,6 +1,6 @@
 """Glint identification on realistic band inputs: which light made which glint.
 
-Inputs are simulated with :func:`scet_render.simulate.simulate_glints` the way a band shows
+Inputs are simulated (:func:`tests.estimator.simulated.simulate_glints`) the way a band shows
 them: only the glints whose rows fall within a 48-row band, 0.3-0.5 px of Gaussian feature
 noise, 5-10 % of the glints dropped, 1-3 spurious blobs per band in the band's rows near the
 cornea, and glints closer than 3 px merged into one blob (the detector cannot split them: two
@@ -21,7 +21,7 @@ from estimator.banding import band_layout
 from estimator.glints import detect_glints
 from estimator.matching import NO_HYPOTHESIS, OK, TOO_FEW_GLINTS, GlintMatcher, MatchParams, match_glints
 from estimator.scene import load_scene
-from scet_render.simulate import ground_truth_glints, simulate_glints
+from tests.estimator.simulated import ground_truth_glints, simulate_glints
 from tests.estimator.test_glints import banded_frame
 
 # --------------------------------------------------------------------------- tolerances

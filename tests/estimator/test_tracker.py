@@ -19,7 +19,7 @@ from estimator.folders import (load_calibration, read_samples_csv, read_timing,
                                save_calibration, timing_document, track_folder)
 from estimator.tracker import (INTERNAL_ERROR, SATURATED_FRAME, UNREADABLE_FRAME,
                                WRONG_FRAME_SIZE, BandPrior, Tracker, TrackerInputError)
-from scet_render.simulate import ground_truth_glints
+from tests.estimator.simulated import ground_truth_glints
 
 DT = None
 

@@ -45,6 +45,29 @@ def test_glints_cover_the_cornea_over_the_whole_screen(setup):
     assert np.allclose(cos, 1.0, atol=1e-14)
 
 
+def test_estimator_tests_simulate_the_same_glints(setup):
+    """tests/estimator simulates its glints without this package
+    (:mod:`tests.estimator.simulated`); the simulator gives the same numbers, noise draw for
+    noise draw, so those tests check what they checked with it."""
+    from tests.estimator import simulated
+
+    for spec in ("grid:24x15", "grid:6x4", "calib:3x3", "calib:5x5"):
+        assert np.array_equal(simulated.screen_targets(spec, setup), parse_targets(spec, setup))
+    targets = parse_targets("grid:6x4", setup)
+    for kwargs in (dict(), dict(noise_px=0.5, rng=5),
+                   dict(noise_px=0.5, noise_model="gaussian", rng=9),
+                   dict(lights_world_m=setup.lights_world_m + [0.002, 0.0, -0.001],
+                        cornea_radius_m=7.5e-3)):
+        ours = simulate_glints(setup, targets, **kwargs)
+        theirs = simulated.simulate_glints(setup, targets, **kwargs)
+        for name in ("targets_m", "yaw_rad", "pitch_rad", "cornea_center_m", "glints_true_px",
+                     "glints_px", "visible"):
+            assert np.array_equal(getattr(ours, name), getattr(theirs, name), equal_nan=True), name
+    a = simulate_glints(setup, targets, noise_px=0.5, rng=np.random.default_rng(2))
+    b = simulated.simulate_glints(setup, targets, noise_px=0.5, rng=np.random.default_rng(2))
+    assert np.array_equal(a.glints_px, b.glints_px, equal_nan=True)
+
+
 def test_targets_specs(setup, tmp_path):
     assert parse_targets("grid:24x15", setup).shape == (360, 3)
     calib = parse_targets("calib:3x3", setup)
