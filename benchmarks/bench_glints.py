@@ -31,9 +31,9 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 from scipy.special import erf  # noqa: E402
 
-from estimator.glints import kernels as glint_kernels
 from estimator.banding import row_pulse_weights
 from estimator.glints import BLENDED, CUT_BY_BAND_EDGE, IMAGE_EDGE, GlintDetector, detect_glints
+from estimator.glints import kernels as glint_kernels
 from estimator.matching import GlintMatcher
 from estimator.scene import load_scene  # noqa: E402
 from scet_render.motion import saccade_sequence

@@ -31,10 +31,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_glints import moving_sequence  # noqa: E402
 
 from estimator.calibration import Calibration, fit_gaze_mapping
+from estimator.folders import iter_folder  # noqa: E402
 from estimator.gaze import fit_cornea_centers  # noqa: E402
 from estimator.glints import GlintDetector
 from estimator.scene import load_scene  # noqa: E402
-from estimator.folders import iter_folder  # noqa: E402
 from estimator.tracker import Tracker  # noqa: E402
 from scet_render.simulate import ground_truth_glints  # noqa: E402
 

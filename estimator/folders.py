@@ -33,13 +33,23 @@ from typing import Callable, Iterator
 import cv2
 import numpy as np
 
-from .calibration import Calibration, calibrate_joint
-from .formats import (FRAMES_DIR, LABELS_NAME, MANIFEST_NAME, SAMPLES_FORMAT, SAMPLES_READABLE,
-                      SAMPLES_VERSION, TIMING_FORMAT, TIMING_NAME, TIMING_VERSION, atomic_write,
-                      check_format, read_json)
+from .calibration import Calibration, calibrate_joint, fit_gaze_mapping
+from .formats import (
+    FRAMES_DIR,
+    LABELS_NAME,
+    MANIFEST_NAME,
+    SAMPLES_FORMAT,
+    SAMPLES_READABLE,
+    SAMPLES_VERSION,
+    TIMING_FORMAT,
+    TIMING_NAME,
+    TIMING_VERSION,
+    atomic_write,
+    check_format,
+    read_json,
+)
 from .gaze import fit_cornea_centers
 from .glints import NO_BAND, detect_glints
-from .calibration import fit_gaze_mapping
 from .matching import GlintMatcher
 from .setup import Setup
 from .tracker import MIN_GLINTS, MISSING_FRAME, UNREADABLE_FRAME, Tracker, TrackerInputError

@@ -28,7 +28,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from .calibration import Calibration, GazeMapping
-from .cornea import NON_FINITE, NOT_CONVERGED, OK, TOO_FEW_GLINTS, CorneaFit, FitProblem, fit_cornea, fit_covariance
+from .cornea import (
+    NON_FINITE,
+    NOT_CONVERGED,
+    OK,
+    TOO_FEW_GLINTS,
+    CorneaFit,
+    FitProblem,
+    fit_cornea,
+    fit_covariance,
+)
 from .eye import gaze_direction
 
 #: The optical axis does not reach the screen plane (it points away from it).
@@ -84,6 +93,32 @@ class GazeEstimates:
         if idx.size == 0:
             return None
         return (self.angles_rad if self.method == "geometric" else self.cornea_center_m)[idx[-1]].copy()
+
+
+@dataclass(frozen=True, slots=True)
+class CalibratedProblems:
+    """The fit problems of one calibration on one setup: built once (:func:`calibrated_problems`)
+    and reused by every band of a stream, by the tracker, its matcher and the gaze functions.
+
+    Attributes
+    ----------
+    center : FitProblem
+        The ``"center"`` problem of polynomial gaze: corrected lights and r_c.
+    orbit : FitProblem or None
+        The ``"orbit"`` problem of geometric gaze (:func:`orbit_problem`); None without the
+        calibration's eye centre and orbit radius.
+    """
+
+    center: FitProblem
+    orbit: FitProblem | None
+
+
+def calibrated_problems(setup, calibration: Calibration) -> CalibratedProblems:
+    """The :class:`CalibratedProblems` of ``calibration`` on ``setup``."""
+    center = FitProblem(setup.camera, calibration.lights_world_m(setup.lights_world_m),
+                        calibration.cornea_radius_m)
+    orbit = orbit_problem(setup, calibration) if calibration.has_orbit else None
+    return CalibratedProblems(center, orbit)
 
 
 def orbit_problem(setup, calibration: Calibration) -> FitProblem:
@@ -219,8 +254,8 @@ def _orbit_fit(problem, glints_px, mask, start, chain, solver, max_iter, prior):
 
 def geometric_gaze(setup, calibration: Calibration, glints_px, mask=None, *, start=(0.0, 0.0),
                    chain: bool = False, solver: str = "lm", max_iter: int = 50,
-                   prior_mean_rad=None, prior_cov_rad2=None,
-                   noise_px: float | None = None) -> GazeEstimates:
+                   prior_mean_rad=None, prior_cov_rad2=None, noise_px: float | None = None,
+                   problems: CalibratedProblems | None = None) -> GazeEstimates:
     """Geometric gaze estimation (Sec. 2.2.1): cornea on its orbit, optical axis to the screen.
 
     Parameters
@@ -247,10 +282,13 @@ def geometric_gaze(setup, calibration: Calibration, glints_px, mask=None, *, sta
     noise_px : float, optional
         Glint noise σ (px per axis) that weighs the prior against the glints (information
         σ² Σ⁻¹); required with a prior.
+    problems : CalibratedProblems, optional
+        The calibration's problems, built once by the caller (:func:`calibrated_problems`);
+        default: built for this call.
     """
     if not calibration.has_orbit:
         raise ValueError("geometric gaze needs a calibration with the eye centre and orbit radius")
-    problem = orbit_problem(setup, calibration)
+    problem = orbit_problem(setup, calibration) if problems is None else problems.orbit
     prior = _prior_args(prior_mean_rad, prior_cov_rad2, noise_px, _batch(glints_px))
     fit = _orbit_fit(problem, glints_px, mask, start, chain, solver, max_iter, prior)
     points, hits = screen_intersection(calibration.eye_center_m,
@@ -260,15 +298,15 @@ def geometric_gaze(setup, calibration: Calibration, glints_px, mask=None, *, sta
 
 
 def fit_cornea_centers(setup, calibration: Calibration, glints_px, mask=None, *, start=None,
-                       chain: bool = False, solver: str = "lm", max_iter: int = 50) -> CorneaFit:
+                       chain: bool = False, solver: str = "lm", max_iter: int = 50,
+                       problems: CalibratedProblems | None = None) -> CorneaFit:
     """Cornea centres (the ``"center"`` model: known r_c and calibrated lighting) of a batch of
     samples: the features of polynomial gaze, for calibrating a mapping and for using it.
 
     ``start`` is the initial centre, by default the nominal eye's at primary position (the
     paper's, Sec. 2.2.1); ``chain`` and ``solver`` as in :func:`geometric_gaze`.
     """
-    problem = FitProblem(setup.camera, calibration.lights_world_m(setup.lights_world_m),
-                         calibration.cornea_radius_m)
+    problem = (calibrated_problems(setup, calibration) if problems is None else problems).center
     x0 = setup.eye.cornea_center(0.0, 0.0) if start is None else start
     return _fit(problem, glints_px, mask, x0, "center", solver, chain, None, None, max_iter)
 
@@ -276,7 +314,8 @@ def fit_cornea_centers(setup, calibration: Calibration, glints_px, mask=None, *,
 def polynomial_gaze(setup, calibration: Calibration, glints_px, mask=None, *, mapping="eq1_25",
                     distance=None, start=None, chain: bool = False, solver: str = "lm",
                     max_iter: int = 50, prior_mean_rad=None, prior_cov_rad2=None,
-                    noise_px: float | None = None) -> GazeEstimates:
+                    noise_px: float | None = None,
+                    problems: CalibratedProblems | None = None) -> GazeEstimates:
     """Polynomial gaze estimation (Sec. 2.2.2): cornea centre, then a calibrated mapping.
 
     Parameters
@@ -307,14 +346,16 @@ def polynomial_gaze(setup, calibration: Calibration, glints_px, mask=None, *, ma
         if not calibration.has_orbit:
             raise ValueError("a prior on the eye rotation needs a calibration with the eye "
                              "centre and orbit radius")
+        orbit = orbit_problem(setup, calibration) if problems is None else problems.orbit
         fit = _merge(prior[2],
-                     _orbit_fit(orbit_problem(setup, calibration), glints_px, mask, (0.0, 0.0),
-                                False, solver, max_iter, prior),
+                     _orbit_fit(orbit, glints_px, mask, (0.0, 0.0), False, solver, max_iter,
+                                prior),
                      fit_cornea_centers(setup, calibration, glints_px, mask, start=start,
-                                        chain=chain, solver=solver, max_iter=max_iter))
+                                        chain=chain, solver=solver, max_iter=max_iter,
+                                        problems=problems))
     else:
         fit = fit_cornea_centers(setup, calibration, glints_px, mask, start=start, chain=chain,
-                                 solver=solver, max_iter=max_iter)
+                                 solver=solver, max_iter=max_iter, problems=problems)
     features = fit.center_m
     if mapping.n_features == 4:
         if distance is None:

@@ -18,10 +18,9 @@ from typing import Any
 
 import numpy as np
 
-from .geometry import Camera
 from .errors import SceneError
 from .eye import BOHME_CORNEA_OFFSET_M, BOHME_CORNEA_RADIUS_M, BOHME_LIMBUS_DEPTH_M, Eye
-from .geometry import RigidPose, look_at_rotation, rotation_from_vector, rotation_matrix
+from .geometry import Camera, RigidPose, look_at_rotation, rotation_from_vector, rotation_matrix
 from .setup import DistanceSensor, LightGroup, LightRig, Screen, Sensor, Setup, Strobe
 
 FORMAT = "scet-scene"

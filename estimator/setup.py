@@ -10,9 +10,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .geometry import Camera
 from .eye import Eye
-from .geometry import RigidPose, as_points
+from .geometry import Camera, RigidPose, as_points
 
 
 @dataclass(frozen=True, slots=True)

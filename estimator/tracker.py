@@ -43,7 +43,7 @@ from .banding import band_layout, strobe_instant
 from .calibration import Calibration
 from .cornea import fit_covariance
 from .eye import EYE_SPEED_MAX_DEG_S
-from .gaze import geometric_gaze, orbit_problem, polynomial_gaze, posterior_covariance
+from .gaze import calibrated_problems, geometric_gaze, polynomial_gaze, posterior_covariance
 from .glints import NO_BAND, DetectionParams, GlintDetections, GlintDetector
 from .matching import GlintMatcher, MatchParams
 from .setup import Setup
@@ -246,10 +246,14 @@ class Tracker:
         self._detector = GlintDetector(setup, detection)
         # Glints predicted from the calibrated geometry, not the nominal one: the lighting pose
         # of the prototype is off by millimetres (a pixel or more per glint).
-        self.matcher = GlintMatcher(setup, matching, calibration=calibration)
+        # One set of calibrated fit problems for the stream: the matcher's orbit fits and the
+        # gaze fits of every band use them.
+        self._problems = calibrated_problems(setup, calibration)
+        self.matcher = GlintMatcher(setup, matching, calibration=calibration,
+                                    problem=self._problems.orbit)
         self.n_lights = setup.lights.count
         self.prior = prior if calibration.has_orbit and matching.model == "orbit" else None
-        self._orbit = orbit_problem(setup, calibration) if self.prior is not None else None
+        self._orbit = self._problems.orbit if self.prior is not None else None
         self.reset()
 
     def reset(self) -> None:
@@ -343,10 +347,11 @@ class Tracker:
         glints = self._glints(g[used], lights)
         if self.method == "polynomial":
             est = polynomial_gaze(self.setup, self.calibration, glints, mapping=self.mapping,
-                                  start=self._start)
+                                  start=self._start, problems=self._problems)
         else:
             est = geometric_gaze(self.setup, self.calibration, glints,
-                                 start=(0.0, 0.0) if self._start is None else self._start)
+                                 start=(0.0, 0.0) if self._start is None else self._start,
+                                 problems=self._problems)
         reason = self._reason(est)
         if reason == "ok" and self._implausible(time_s, match.angles_rad):
             reason = IMPLAUSIBLE_JUMP
@@ -378,7 +383,8 @@ class Tracker:
         used = match.matched
         lights = match.light_index[used]
         glints = self._glints(g[used], lights)
-        prior = dict(prior_mean_rad=mean, prior_cov_rad2=cov, noise_px=self.prior.noise_px)
+        prior = dict(prior_mean_rad=mean, prior_cov_rad2=cov, noise_px=self.prior.noise_px,
+                     problems=self._problems)
         if self.method == "polynomial":
             est = polynomial_gaze(self.setup, self.calibration, glints, mapping=self.mapping,
                                   **prior)

@@ -14,7 +14,13 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.banding import band_gap_rows, band_layout, exposure_start, readout_time, row_pulse_weights
+from estimator.banding import (
+    band_gap_rows,
+    band_layout,
+    exposure_start,
+    readout_time,
+    row_pulse_weights,
+)
 from estimator.setup import Sensor, Strobe
 
 

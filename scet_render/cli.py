@@ -82,7 +82,12 @@ def cmd_bands(args) -> int:
 
 def cmd_simulate(args) -> int:
     from estimator.scene import load_scene
-    from scet_render.simulate import glint_statistics, parse_targets, save_observations, simulate_glints
+    from scet_render.simulate import (
+        glint_statistics,
+        parse_targets,
+        save_observations,
+        simulate_glints,
+    )
 
     setup = load_scene(args.scene)
     targets = parse_targets(args.targets, setup)
@@ -133,6 +138,7 @@ class _StageBars:
 
 def cmd_render(args) -> int:
     from estimator.scene import load_scene
+
     from .dataset import render_dataset
 
     setup = load_scene(args.scene)
@@ -150,6 +156,7 @@ def cmd_render(args) -> int:
 
 def cmd_export_mitsuba(args) -> int:
     from estimator.scene import load_scene
+
     from .render import SceneOptions, export_mitsuba
 
     setup = load_scene(args.scene)
@@ -161,8 +168,8 @@ def cmd_export_mitsuba(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
-    from estimator.scene import load_scene
     from estimator.folders import calibrate_from_folder, save_calibration
+    from estimator.scene import load_scene
 
     setup = load_scene(args.scene)
     cal = calibrate_from_folder(args.dir, setup)
@@ -172,8 +179,8 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_track(args) -> int:
-    from estimator.scene import load_scene
     from estimator.folders import load_calibration, track_folder
+    from estimator.scene import load_scene
 
     setup = load_scene(args.scene)
     cal = load_calibration(args.calibration)

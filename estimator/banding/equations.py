@@ -1,7 +1,7 @@
 """Eqs. (2)-(8) of the SCET paper: readout and exposure start of each row, the first
 lit row of a pulse, partially lit and usable lines, band height, spacing, gap and drift.
 
-See :mod:`estimator.banding` for the lattice of rows and the exact trapezoid these approximate.
+See :mod:`estimator.banding.layout` for the lattice of rows and the exact trapezoid these approximate.
 """
 
 from __future__ import annotations
@@ -12,7 +12,6 @@ import numbers
 import numpy as np
 
 from ..setup import Sensor, Strobe
-
 
 #: Overlaps shorter than this count as no light at all: far below any strobe's clock jitter, and
 #: above the float64 rounding of s_j = phase + j Δ_clk for sequences up to about an hour

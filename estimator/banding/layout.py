@@ -28,8 +28,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..setup import Sensor, Strobe
-from .equations import TIME_EPS_S, _check_frame_index, _check_sensor, _check_strobe, _frame_start_s, exposure_start, first_lit_row, readout_time
-
+from .equations import (
+    TIME_EPS_S,
+    _check_frame_index,
+    _check_sensor,
+    _check_strobe,
+    _frame_start_s,
+    exposure_start,
+    first_lit_row,
+    readout_time,
+)
 
 #: ``row_strobe``'s pulse index for a dark row. Not -1: pulse indices are global and pulse -1
 #: (the last pulse before s^(0)) routinely lights the top rows of frame 0.

@@ -8,12 +8,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-
 from ..geometry import Camera
 from ..setup import Sensor, Setup, Strobe
 from .equations import _check_pulse_s, _check_sensor
-
-
 
 # --------------------------------------------------------------------------- planning
 

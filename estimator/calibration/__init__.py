@@ -6,11 +6,19 @@ Modules: ``lighting``, ``orbit``, ``mapping`` (Eq. (1) and the second-order poly
 """
 
 from .lighting import (
-    CORNEA_RADIUS_INIT_M, CORNEA_RADIUS_SD_M, CORNEA_RADIUS_BOUNDS_M, POSE_BOUND_M,
-    POSE_BOUND_RAD, pose_correction, corrected_lights, LightingFit,
-    calibrate_lighting_per_frame, calibrate_lighting_joint, calibrate_joint
+    CORNEA_RADIUS_BOUNDS_M,
+    CORNEA_RADIUS_INIT_M,
+    CORNEA_RADIUS_SD_M,
+    POSE_BOUND_M,
+    POSE_BOUND_RAD,
+    LightingFit,
+    calibrate_joint,
+    calibrate_lighting_joint,
+    calibrate_lighting_per_frame,
+    corrected_lights,
+    pose_correction,
 )
-from .mapping import MAPPING_TERMS, RANK_RTOL, GazeMapping, fit_gaze_mapping, distance_reading
+from .mapping import MAPPING_TERMS, RANK_RTOL, GazeMapping, distance_reading, fit_gaze_mapping
 from .orbit import ORBIT_RADIUS_BOUNDS_M, OrbitFit, orbit_law_of_sines, orbit_sphere_fit
 from .result import Calibration
 

@@ -10,13 +10,17 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import least_squares
 
-from ..geometry import Camera
 from ..cornea import FitProblem, fit_cornea
 from ..eye import fick_angles, gaze_direction
-from ..geometry import RigidPose, as_points, rotation_from_vector, rotations_from_vectors
-from ..geometry import glint_jacobians
+from ..geometry import (
+    Camera,
+    RigidPose,
+    as_points,
+    glint_jacobians,
+    rotation_from_vector,
+    rotations_from_vectors,
+)
 from .orbit import ORBIT_RADIUS_BOUNDS_M, OrbitFit, orbit_law_of_sines
-
 
 #: Corneal radius prior, Read et al. (2006), "The topography of the central and peripheral
 #: cornea", IOVS 47(4):1404-1415: conic fits to 100 young adults gave an apical radius of

@@ -18,8 +18,6 @@ from ..formats import MAPPING_FORMAT, MAPPING_VERSION, check_format
 from ..setup import DistanceSensor
 
 
-
-
 def _monomials(n_vars: int, max_degree: int, multilinear: bool):
     terms = [e for e in itertools.product(range(max_degree + 1), repeat=n_vars)
              if (max(e) <= 1 if multilinear else sum(e) <= max_degree)]

@@ -30,14 +30,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import RigidPose
 from ..formats import CALIBRATION_FORMAT, CALIBRATION_VERSION, check_format
-from .mapping import GazeMapping
+from ..geometry import RigidPose
 from .lighting import CORNEA_RADIUS_INIT_M, LightingFit, corrected_lights
+from .mapping import GazeMapping
 from .orbit import OrbitFit
-
-
-
 
 # --------------------------------------------------------------------------------------------
 # Everything together

@@ -6,7 +6,7 @@ the paper's TRF).
 """
 
 from .fit import fit_cornea, fit_covariance
-from .problem import MODELS, OK, TOO_FEW_GLINTS, NOT_CONVERGED, NON_FINITE, CorneaFit, FitProblem
+from .problem import MODELS, NON_FINITE, NOT_CONVERGED, OK, TOO_FEW_GLINTS, CorneaFit, FitProblem
 
 __all__ = [
     "fit_cornea", "fit_covariance", "MODELS", "OK", "TOO_FEW_GLINTS", "NOT_CONVERGED",

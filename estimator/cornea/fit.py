@@ -21,13 +21,12 @@ is NaN with the reason ``"too_few_glints"``.
 
 from __future__ import annotations
 
-
 import numpy as np
 
-from . import solve as _solve
-from ..eye import fick_angles
-from .problem import CorneaFit, FitProblem, MODELS, NON_FINITE, NOT_CONVERGED, OK, TOO_FEW_GLINTS
+import estimator.cornea.solve as _solve
 
+from ..eye import fick_angles
+from .problem import MODELS, NON_FINITE, NOT_CONVERGED, OK, TOO_FEW_GLINTS, CorneaFit, FitProblem
 
 
 def _prepare(glints_px, mask, n_lights, p):

@@ -8,9 +8,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..geometry import Camera
-from ..geometry import rotations_from_vectors
-
+from ..geometry import Camera, rotations_from_vectors
 
 MODELS = {"center": 3, "center_radius": 4, "orbit": 2, "full": 10}
 #: Reason codes of a fit, per sample.

@@ -15,9 +15,9 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from ..eye import gaze_direction
-from ..geometry.fit_rows import _centre_fit_rows
-from ..geometry.jacobians import _jacobian_terms, _radius_rows
 from ..geometry import glint_jacobians, project_glints
+from ..geometry.fit_rows import centre_fit_rows
+from ..geometry.jacobians import jacobian_terms, radius_rows
 
 if TYPE_CHECKING:
     from .problem import FitProblem
@@ -115,7 +115,7 @@ def normal_equations(model, problem: FitProblem, x, glints, mask, lights=None, p
 
     ``lights`` (B, k, 3), if given, replaces the problem's lights (gathered glints: each
     sample's seen glints first). The centre's rows come from
-    :func:`estimator.geometry.fit_rows._centre_fit_rows` in a basis per sample, are summed by one
+    :func:`estimator.geometry.fit_rows.centre_fit_rows` in a basis per sample, are summed by one
     matrix product per sample and turned to world axes once (J_world = J_b N); the orbit's
     follow by the chain rule (Dᵀ JᵀJ D)."""
     if model == "full":
@@ -131,7 +131,7 @@ def normal_equations(model, problem: FitProblem, x, glints, mask, lights=None, p
             # One product per sample sums the fast path's rows; the few samples it does not
             # handle take the general path. (A product of an array with itself sums every
             # sample the same way whatever the batch, so blocks give the same answers.)
-            G, N, fast = _centre_fit_rows(problem.camera, center, radius, L, glints, mask)
+            G, N, fast = centre_fit_rows(problem.camera, center, radius, L, glints, mask)
             S = G @ np.swapaxes(G, 1, 2)
             fast &= np.isfinite(S).all(axis=(1, 2))
             Nt = np.swapaxes(N, 1, 2)
@@ -155,15 +155,15 @@ def normal_equations(model, problem: FitProblem, x, glints, mask, lights=None, p
 
 def _general_sums(camera, center, radius, lights, glints, mask, with_radius: bool):
     """Cost, JᵀJ and Jᵀr with respect to the world centre (and the radius) from
-    :func:`estimator.geometry._jacobian_terms`: the path for every geometry."""
-    T = _jacobian_terms(camera, center, radius, lights, with_visibility=False)
+    :func:`estimator.geometry.jacobian_terms`: the path for every geometry."""
+    T = jacobian_terms(camera, center, radius, lights, with_visibility=False)
     # A masked glint's rows and residual are zero; where() also drops the NaN of a glint
     # behind the camera.
     ru = np.where(mask, T.u - glints[..., 0], 0.0)
     rv = np.where(mask, T.v - glints[..., 1], 0.0)
     cols_u, cols_v = list(T.row_u), list(T.row_v)
     if with_radius:
-        du, dv = _radius_rows(T)
+        du, dv = radius_rows(T)
         cols_u.append(du)
         cols_v.append(dv)
     Ju = [np.where(mask, a, 0.0) for a in cols_u]

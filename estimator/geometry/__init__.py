@@ -10,10 +10,16 @@ Modules: ``rigid`` (poses, rotations, point checks), ``camera`` (:class:`Camera`
 
 from .camera import Camera
 from .jacobians import glint_jacobians
-from .reflection import reflection_points, project_glints, reflect_pixel_rays
+from .reflection import project_glints, reflect_pixel_rays, reflection_points
 from .rigid import (
-    as_points, normalize, rotation_matrix, rotation_from_vector, rotation_to_vector,
-    look_at_rotation, RigidPose, rotations_from_vectors
+    RigidPose,
+    as_points,
+    look_at_rotation,
+    normalize,
+    rotation_from_vector,
+    rotation_matrix,
+    rotation_to_vector,
+    rotations_from_vectors,
 )
 
 __all__ = [

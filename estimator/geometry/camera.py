@@ -14,7 +14,6 @@ import numpy as np
 from .rigid import as_points, normalize
 
 
-
 @dataclass(frozen=True, slots=True)
 class Camera:
     """A calibrated pinhole camera.

@@ -1,7 +1,7 @@
 """The cornea-centre fit's Jacobian rows, packed for the normal equations: the fast path of
 :func:`estimator.cornea.solve.normal_equations` for the ``"center"`` and ``"orbit"`` models.
 
-The geometry is that of :func:`estimator.geometry._jacobian_terms` (the general path, which
+The geometry is that of :func:`estimator.geometry.jacobian_terms` (the general path, which
 handles every configuration and stays the reference), computed with about half the
 elementwise passes: in a basis per sample, with the reflection's root found on a quartic in
 tan(ψ/2), and with the residuals and the rows written side by side so that one matrix product
@@ -17,20 +17,19 @@ import threading
 import numpy as np
 
 from .camera import Camera
-from .roots import _STEP_STOP_RAD
 from .reflection import _apply
-
+from .roots import _STEP_STOP_RAD
 
 #: The fast centre-fit path's root has settled when its last Newton step on τ = tan(ψ/2) is
 #: below this: the :data:`_STEP_STOP_RAD` of the general path, as dψ = 2 dτ / (1 + τ²).
 _TAU_STOP = 0.5 * _STEP_STOP_RAD
 #: Largest block (samples x lights) whose work arrays are kept between calls: the LM's
-#: largest block of 40 lights (1.5 x cornea_solve._BLOCK samples), ~7 MB per thread.
+#: largest block of 40 lights (1.5 x estimator.cornea.solve._BLOCK samples), ~7 MB per thread.
 _SCRATCH_PAIRS = 30000
 
 
 class _Scratch(threading.local):
-    """Work arrays of :func:`_centre_fit_rows`, kept between calls, one set per thread.
+    """Work arrays of :func:`centre_fit_rows`, kept between calls, one set per thread.
 
     A fit evaluates its glints a few times per block of samples, each time through some forty
     (samples, lights) arrays. Fresh ones come from memory that the allocator has just handed
@@ -57,11 +56,11 @@ class _Scratch(threading.local):
 _scratch = _Scratch()
 
 
-def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask):
+def centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask):
     """Residuals and rows of d glint / d centre of a cornea-centre fit, packed so that one
     matrix product per sample gives its normal equations.
 
-    The same geometry as :func:`_jacobian_terms` with half the elementwise passes. Vectors are
+    The same geometry as :func:`jacobian_terms` with half the elementwise passes. Vectors are
     written in an orthonormal basis per sample, (e1, f2, f3) with e1 from the cornea centre
     toward the camera: a light's plane of reflection is spanned by e1 and e2 = cos ζ f2 +
     sin ζ f3, its normal is k = (0, -sin ζ, cos ζ), and the lights' coordinates, the
@@ -98,7 +97,7 @@ def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask
     fast : (B,) bool
         False for a sample with a pair this path does not handle (a light on the line through
         the camera and the centre, a camera or light inside the sphere, a root that did not
-        settle or left [0, φ]): take that sample from :func:`_jacobian_terms`.
+        settle or left [0, φ]): take that sample from :func:`jacobian_terms`.
     """
     R = camera.rotation
     c = _apply(R, center - camera.position_m) / radius  # units of r from here on
@@ -219,7 +218,7 @@ def _centre_fit_rows(camera: Camera, center, radius: float, lights, glints, mask
         np.multiply(H[:, 0], xz, out=H[:, 1])
         np.multiply(H[:, 0], yz, out=H[:, 2])
         # Distances to camera and light over r, incidence angle and the terms of dP/dc of
-        # _jacobian_terms: rH = r (1/d_u + 1/d_w), rD = r (1/d_w - 1/d_u), g, m_k, m_t, b_tn.
+        # jacobian_terms: rH = r (1/d_u + 1/d_w), rD = r (1/d_w - 1/d_u), g, m_k, m_t, b_tn.
         cos_i, inv_qa, sin_i, rH, inv_g, m_k = w[2], w[3], w[5], w[6], w[7], w[8]
         np.multiply(alpha, ct, out=cos_i)
         np.add(cos_i, cos_i, out=inv_qa)

@@ -10,10 +10,8 @@ from types import SimpleNamespace
 import numpy as np
 
 from .camera import Camera
-from .rigid import as_points
 from .reflection import _apply, _solve_local, _stack, _to_local, _visibility_local
-
-
+from .rigid import as_points
 
 
 def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, *,
@@ -61,7 +59,7 @@ def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, 
     if frame not in ("world", "camera"):
         raise ValueError(f"frame must be 'world' or 'camera', got {frame!r}")
     R = camera.rotation
-    T = _jacobian_terms(camera, center, cornea_radius, lights, axis, cap_cos_min)
+    T = jacobian_terms(camera, center, cornea_radius, lights, axis, cap_cos_min)
     shape = T.shape
     glints = _stack((T.u, T.v))
     visible = np.broadcast_to(T.visible, shape)
@@ -69,7 +67,7 @@ def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, 
     d_center = _rows_to_world(shape, R_out, T.row_u, T.row_v)
     if not radius_and_lights:
         return glints, visible, d_center, None, None
-    d_radius = _stack(_radius_rows(T))
+    d_radius = _stack(radius_rows(T))
     l_t, l_k = T.rr * T.inv_dw * T.inv_g, T.rr * T.inv_dw * T.inv_qk
     n, t, k = (T.nx, T.ny, T.nz), T.t, T.k
     w_perp = [T.sin_i * a + T.cos_i * b for a, b in zip(n, t)]
@@ -80,13 +78,13 @@ def glint_jacobians(camera: Camera, cornea_center, cornea_radius, lights_world, 
     return glints, visible, d_center, d_radius, _rows_to_world(shape, R_out, *rows)
 
 
-def _radius_rows(T: SimpleNamespace):
-    """d u / d r and d v / d r from :func:`_jacobian_terms` (dP/dr = n - (r D sin i / g) t)."""
+def radius_rows(T: SimpleNamespace):
+    """d u / d r and d v / d r from :func:`jacobian_terms` (dP/dr = n - (r D sin i / g) t)."""
     return (T.fxz * (T.nx - T.xz * T.nz - T.b_tn * T.pt_x),
             T.fyz * (T.ny - T.yz * T.nz - T.b_tn * T.pt_y))
 
 
-def _jacobian_terms(camera: Camera, center, radius, lights, axis=None, cap_cos_min=None,
+def jacobian_terms(camera: Camera, center, radius, lights, axis=None, cap_cos_min=None,
                     with_visibility: bool = True) -> SimpleNamespace:
     """Glints and the camera-frame rows of d glint / d centre, as component arrays (...,  n),
     with the intermediate terms the radius and light derivatives reuse.

@@ -39,7 +39,6 @@ from .rigid import as_points
 from .roots import _first_order_root, _newton_unit, _quartic_root
 
 
-
 class _Plane(NamedTuple):
     """The plane of reflection of every (pose, light) pair, in a frame centred on the camera.
 

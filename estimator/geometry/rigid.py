@@ -11,7 +11,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 
-
 def as_points(x, name: str = "points") -> np.ndarray:
     """Coerce ``x`` to a float64 array whose last axis has length 3."""
     a = np.asarray(x, dtype=np.float64)

@@ -5,10 +5,7 @@ cross-check), in the local plane of :mod:`estimator.geometry.reflection`.
 
 from __future__ import annotations
 
-
 import numpy as np
-
-
 
 #: Newton iterations stop once every step is a Newton step below this (radians): convergence
 #: is quadratic with |F''/2F'| of order one on the cornea, so the error left after such a step

@@ -9,8 +9,15 @@ same steps compiled with Numba, optional), ``detector`` (:func:`detect_glints`),
 
 from .detector import detect_glints
 from .params import (
-    SATURATED, CUT_BY_BAND_EDGE, TWO_PULSES, IMAGE_EDGE, NO_BAND, BLENDED, FLAG_NAMES,
-    DetectionParams, GlintDetections
+    BLENDED,
+    CUT_BY_BAND_EDGE,
+    FLAG_NAMES,
+    IMAGE_EDGE,
+    NO_BAND,
+    SATURATED,
+    TWO_PULSES,
+    DetectionParams,
+    GlintDetections,
 )
 from .sequence import GlintDetector, window_margin_px
 

@@ -75,14 +75,34 @@ import math
 import cv2
 import numpy as np
 
-from . import kernels as glint_kernels, spots as glint_spots
+import estimator.glints.kernels as glint_kernels
+import estimator.glints.spots as glint_spots
+
 from ..banding import NO_PULSE, strobe_instant
-from .noise import _flat_true, _line_kernel, _NoiseModel
-from .spots import _Boxes, _deblend, _frame_timing, _gather, _Labels, _measure_patches, _measure_pixels, _Spots, _weights
 from ..setup import Sensor, Setup
-from .params import BLENDED, CUT_BY_BAND_EDGE, DetectionParams, GlintDetections, IMAGE_EDGE, NO_BAND, SATURATED, TWO_PULSES, _empty
-
-
+from .noise import _flat_true, _line_kernel, _NoiseModel
+from .params import (
+    BLENDED,
+    CUT_BY_BAND_EDGE,
+    IMAGE_EDGE,
+    NO_BAND,
+    SATURATED,
+    TWO_PULSES,
+    DetectionParams,
+    GlintDetections,
+    _empty,
+)
+from .spots import (
+    _Boxes,
+    _deblend,
+    _frame_timing,
+    _gather,
+    _Labels,
+    _measure_patches,
+    _measure_pixels,
+    _Spots,
+    _weights,
+)
 
 # --------------------------------------------------------------------------- input checks
 

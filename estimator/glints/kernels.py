@@ -1,4 +1,4 @@
-"""Steps 2-6 of :mod:`estimator.glints` after the top-hat, compiled with Numba (optional): the
+"""Steps 2-6 of :mod:`estimator.glints.detector` after the top-hat, compiled with Numba (optional): the
 exact threshold and the connected components (:func:`components`), each component's centroid,
 shape and light (:func:`measure`), and the filters, strobe, time and flags of the spots that
 pass (:func:`finish`), one call each. Blended spots are still split by the numpy
@@ -6,7 +6,7 @@ pass (:func:`finish`), one call each. Blended spots are still split by the numpy
 
 Without Numba (``pip install scet`` without the ``fast`` extra, a platform with no Numba wheel,
 or ``NUMBA_DISABLE_JIT=1``) the detector runs its numpy and OpenCV path
-(:mod:`estimator.glints.spots`, :func:`estimator.glints._finish`): the estimator needs nothing
+(:mod:`estimator.glints.spots`, :func:`estimator.glints.detector._finish`): the estimator needs nothing
 beyond numpy, scipy and OpenCV. Both give the same detections (tested to 1e-9 px and equal
 flags, strobes and times); the numpy path runs at about half the frame rate, its cost being
 the overhead of ~300 numpy calls per frame on a few hundred pixels, not the pixels.
@@ -26,7 +26,6 @@ import threading
 import numpy as np
 
 from ..banding import NO_PULSE, strobe_instant
-
 
 try:
     import numba
@@ -365,7 +364,7 @@ def measure(box, img, top, labels: np.ndarray, noise, table, params):
 
 def finish(spots, area, row0, row1, edge, blended, replaced, table, m_off: int, strobe,
            full_scale: float, params):
-    """:func:`estimator.glints._finish`, compiled: the same arrays."""
+    """:func:`estimator.glints.detector._finish`, compiled: the same arrays."""
     from .params import BLENDED, CUT_BY_BAND_EDGE, IMAGE_EDGE, NO_BAND, SATURATED, TWO_PULSES
 
     return _finish_kernel(

@@ -1,4 +1,4 @@
-"""Step 2 of :mod:`estimator.glints`: the top-hat's noise model, and the fast search for the
+"""Step 2 of :mod:`estimator.glints.detector`: the top-hat's noise model, and the fast search for the
 pixels above a threshold.
 
 The model is measured on a 1-in-64 subsample of the frame (:data:`_NOISE_STEP`); its bins,

@@ -8,8 +8,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-
-
 #: Flag bits of :attr:`GlintDetections.flags`.
 SATURATED = 1
 CUT_BY_BAND_EDGE = 2

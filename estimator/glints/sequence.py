@@ -9,12 +9,11 @@ import math
 import numpy as np
 
 from ..eye import EYE_SPEED_MAX_DEG_S, gaze_direction
-from .noise import _NOISE_STEP, _NoiseModel
 from ..geometry import project_glints
 from ..setup import Setup
 from .detector import _detect, _full_scale_and_black, _prepare
+from .noise import _NOISE_STEP, _NoiseModel
 from .params import DetectionParams, GlintDetections
-
 
 
 class GlintDetector:

@@ -1,4 +1,4 @@
-"""Steps 4 and 6 of :mod:`estimator.glints`: each component's centroid, shape and light, and
+"""Steps 4 and 6 of :mod:`estimator.glints.detector`: each component's centroid, shape and light, and
 the per-row pulse weights that correct its centroid and name its strobe.
 
 Components are measured on one stack of equal patches when their boxes are small

@@ -7,10 +7,17 @@ eye, priors, hypotheses), ``matcher`` (:class:`GlintMatcher`).
 from .matcher import GlintMatcher, match_glints
 from .model import calibrated_eye
 from .params import (
-    OK, TOO_FEW_GLINTS, NO_HYPOTHESIS, FIT_FAILED, AMBIGUOUS, MatchParams, GlintMatch
+    AMBIGUOUS,
+    FIT_FAILED,
+    NO_HYPOTHESIS,
+    OK,
+    TOO_FEW_GLINTS,
+    GlintMatch,
+    MatchParams,
 )
+from .search import HypothesisSearch
 
 __all__ = [
     "GlintMatcher", "match_glints", "calibrated_eye", "OK", "TOO_FEW_GLINTS", "NO_HYPOTHESIS",
-    "FIT_FAILED", "AMBIGUOUS", "MatchParams", "GlintMatch"
+    "FIT_FAILED", "AMBIGUOUS", "MatchParams", "GlintMatch", "HypothesisSearch"
 ]

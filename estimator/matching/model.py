@@ -12,7 +12,6 @@ from ..calibration import Calibration
 from ..eye import Eye
 
 
-
 @dataclass(frozen=True, slots=True)
 class _Prior:
     """A prior on the eye rotation: mean (2,) rad, weight Σ⁻¹ (2, 2) in 1/rad² of the score,

@@ -8,7 +8,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
 #: Reason codes of a :class:`GlintMatch`.
 OK, TOO_FEW_GLINTS, NO_HYPOTHESIS, FIT_FAILED, AMBIGUOUS = (
     "ok", "too_few_glints", "no_hypothesis", "fit_failed", "ambiguous")

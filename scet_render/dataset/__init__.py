@@ -6,11 +6,25 @@ frames).
 
 from .calibration import CALIB_FIXATION_S, render_calibration
 from .format import (
-    FORMAT, VERSION, MANIFEST_NAME, LABELS_NAME, FRAMES_DIR, PARTIAL_SUFFIX, TRAJECTORY_KINDS,
-    GRID_COLS, GRID_ROWS, FIXATION_S, SACCADE_FIXATION_RANGE_S, PNG_COMPRESSION, DatasetError,
-    DatasetMismatchError, RenderSummary, StrobeLabel, counts_png
+    FIXATION_S,
+    FORMAT,
+    FRAMES_DIR,
+    GRID_COLS,
+    GRID_ROWS,
+    LABELS_NAME,
+    MANIFEST_NAME,
+    PARTIAL_SUFFIX,
+    PNG_COMPRESSION,
+    SACCADE_FIXATION_RANGE_S,
+    TRAJECTORY_KINDS,
+    VERSION,
+    DatasetError,
+    DatasetMismatchError,
+    RenderSummary,
+    StrobeLabel,
+    counts_png,
 )
-from .labels import visible_bands, frame_labels, ExrFrame, read_exr, iter_labels
+from .labels import ExrFrame, frame_labels, iter_labels, read_exr, visible_bands
 from .writer import dataset_trajectory, render_dataset
 
 __all__ = [

@@ -18,7 +18,6 @@ from ..motion import fixation_sequence
 from .format import counts_png
 from .labels import frame_labels
 
-
 #: Calibration fixation per target (s); one frame is rendered in its middle.
 CALIB_FIXATION_S = 0.1
 

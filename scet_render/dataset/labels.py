@@ -13,12 +13,11 @@ import numpy as np
 
 from estimator.banding import band_layout, strobe_instant
 from estimator.setup import Setup
+
 from ..motion import Trajectory
 from ..simulate import ground_truth_glints
-from .format import DatasetError, FORMAT, LABELS_NAME, StrobeLabel, VERSION, _floats, _vec3
+from .format import FORMAT, LABELS_NAME, VERSION, DatasetError, StrobeLabel, _floats, _vec3
 from .manifest import read_manifest
-
-
 
 # --------------------------------------------------------------------------- labels
 

@@ -16,10 +16,18 @@ import numpy as np
 
 from estimator.formats import check_format
 from estimator.setup import Setup
+
 from ..render import SensorModel
-from .format import DatasetError, DatasetMismatchError, FORMAT, FRAMES_DIR, LABELS_NAME, MANIFEST_NAME, PARTIAL_SUFFIX, VERSION
-
-
+from .format import (
+    FORMAT,
+    FRAMES_DIR,
+    LABELS_NAME,
+    MANIFEST_NAME,
+    PARTIAL_SUFFIX,
+    VERSION,
+    DatasetError,
+    DatasetMismatchError,
+)
 
 # --------------------------------------------------------------------------- manifest
 

@@ -63,13 +63,37 @@ import numpy as np
 from estimator.banding import strobe_instant
 from estimator.formats import atomic_file, atomic_write, frame_name
 from estimator.setup import Setup
+
 from ..motion import FixationalNoise, Trajectory, fixation_sequence, saccade_sequence
 from ..render import SensorModel
-from .format import FIXATION_S, FORMAT, FRAMES_DIR, GRID_COLS, GRID_ROWS, LABELS_NAME, MANIFEST_NAME, RenderSummary, SACCADE_FIXATION_RANGE_S, VERSION, _STREAM_RENDER, _STREAM_SENSOR, _STREAM_TRAJECTORY, _check_int, _check_kind, _exr, counts_png
+from .format import (
+    _STREAM_RENDER,
+    _STREAM_SENSOR,
+    _STREAM_TRAJECTORY,
+    FIXATION_S,
+    FORMAT,
+    FRAMES_DIR,
+    GRID_COLS,
+    GRID_ROWS,
+    LABELS_NAME,
+    MANIFEST_NAME,
+    SACCADE_FIXATION_RANGE_S,
+    VERSION,
+    RenderSummary,
+    _check_int,
+    _check_kind,
+    _exr,
+    counts_png,
+)
 from .labels import frame_labels, visible_bands
-from .manifest import _compare_manifests, _frame_done, _manifest, _manifest_bytes, _prepare_folder, _scene_text
-
-
+from .manifest import (
+    _compare_manifests,
+    _frame_done,
+    _manifest,
+    _manifest_bytes,
+    _prepare_folder,
+    _scene_text,
+)
 
 # --------------------------------------------------------------------------- trajectories
 

@@ -8,8 +8,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-
-
 #: Carpenter (1988): saccade duration D = slope * A + intercept.
 CARPENTER_SLOPE_S_PER_DEG = 2.2e-3
 CARPENTER_INTERCEPT_S = 21e-3

@@ -4,15 +4,13 @@ joining trajectories with main-sequence saccades.
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from estimator.eye import Eye
 from estimator.setup import Screen
+
 from .saccades import FixationalNoise, SaccadeModel
 from .trajectory import SAME_DIRECTION_RAD, SegmentKind, Trajectory, _noise_rows, _rows
-
-
 
 # -- builders --------------------------------------------------------------------------------
 

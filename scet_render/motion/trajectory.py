@@ -48,7 +48,6 @@ import numpy as np
 
 from estimator.eye import fick_angles, gaze_direction
 
-
 #: Two gaze directions closer than this are the same: no saccade is inserted between them.
 SAME_DIRECTION_RAD = 1e-9
 #: Sinusoids per axis in the fixational noise of one fixation: half drift, half tremor.

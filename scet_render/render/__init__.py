@@ -4,28 +4,62 @@ and the OV5647 sensor model (``sensor``). Mitsuba is imported lazily.
 """
 
 from .backend import (
-    LLVM_MIN_VERSION, SUPPORTED_VARIANTS, VARIANT_ENV, LLVM_ENV, DEFAULT_LLVM_GLOBS,
-    VariantChoice, llvm_version, find_libllvm, gpu_available, choose_variant, activate,
-    is_jit_variant
+    DEFAULT_LLVM_GLOBS,
+    LLVM_ENV,
+    LLVM_MIN_VERSION,
+    SUPPORTED_VARIANTS,
+    VARIANT_ENV,
+    VariantChoice,
+    activate,
+    choose_variant,
+    find_libllvm,
+    gpu_available,
+    is_jit_variant,
+    llvm_version,
 )
 from .export import export_mitsuba
 from .layout import (
-    DEFAULT_LIGHT_RADIANCE, DEFAULT_AMBIENT_RADIANCE, LID_CLEARANCE_M, SKIN_OVER_LID_M,
-    LID_MARGIN_RAD, PUPIL_OFFSET_M, FACE_BEHIND_CENTER_M, SCENE_UNITS_PER_M, FILM_TO_OPENCV_PX,
-    SCLERA_MASK_TEXELS, CORNEA_MODES, CORNEA_GEOMETRIES, CHANNEL_MODES, MOVING_KEYS,
-    SceneOptions, EyeLayout, eye_layout
+    CHANNEL_MODES,
+    CORNEA_GEOMETRIES,
+    CORNEA_MODES,
+    DEFAULT_AMBIENT_RADIANCE,
+    DEFAULT_LIGHT_RADIANCE,
+    FACE_BEHIND_CENTER_M,
+    FILM_TO_OPENCV_PX,
+    LID_CLEARANCE_M,
+    LID_MARGIN_RAD,
+    MOVING_KEYS,
+    PUPIL_OFFSET_M,
+    SCENE_UNITS_PER_M,
+    SCLERA_MASK_TEXELS,
+    SKIN_OVER_LID_M,
+    EyeLayout,
+    SceneOptions,
+    eye_layout,
 )
-from .meshes import cornea_mesh, eyelid_meshes, skin_mesh, sclera_opacity, eye_part_transforms
+from .meshes import cornea_mesh, eye_part_transforms, eyelid_meshes, sclera_opacity, skin_mesh
 from .rolling_shutter import (
-    SPEED_SAMPLES_PER_PERIOD, FrameRender, FramePlan, motion_instants, plan_frame,
-    BandedRenderer
+    SPEED_SAMPLES_PER_PERIOD,
+    BandedRenderer,
+    FramePlan,
+    FrameRender,
+    motion_instants,
+    plan_frame,
 )
-from .scene import sensor_dict, SceneDescription, describe_scene, EyeScene
+from .scene import EyeScene, SceneDescription, describe_scene, sensor_dict
 from .sensor import (
-    CORNEA_FRESNEL_REFLECTANCE, REFERENCE_EMITTER_RADIANCE, GLINT_SATURATION_FRACTION,
-    OV5647_FULL_WELL_E, OV5647_READ_NOISE_E, OV5647_DARK_CURRENT_E_PER_S,
-    OV5647_CONVERSION_GAIN_E_PER_DN, OV5647_BLACK_LEVEL_DN, OV5647_ADC_BIT_DEPTH,
-    OV5647_SATURATION_E, DEFAULT_ELECTRONS_PER_RADIANCE, SensorModel
+    CORNEA_FRESNEL_REFLECTANCE,
+    DEFAULT_ELECTRONS_PER_RADIANCE,
+    GLINT_SATURATION_FRACTION,
+    OV5647_ADC_BIT_DEPTH,
+    OV5647_BLACK_LEVEL_DN,
+    OV5647_CONVERSION_GAIN_E_PER_DN,
+    OV5647_DARK_CURRENT_E_PER_S,
+    OV5647_FULL_WELL_E,
+    OV5647_READ_NOISE_E,
+    OV5647_SATURATION_E,
+    REFERENCE_EMITTER_RADIANCE,
+    SensorModel,
 )
 
 __all__ = [

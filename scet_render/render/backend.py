@@ -26,7 +26,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
-
 log = logging.getLogger(__name__)
 
 #: Oldest libLLVM that Dr.Jit 1.x runs on without crashing (LLVM 14/15 fail, DESIGN.md).

@@ -11,10 +11,9 @@ import numpy as np
 
 from estimator.formats import atomic_write
 from estimator.setup import Setup
+
 from .layout import SceneOptions
 from .scene import describe_scene
-
-
 
 # --------------------------------------------------------------------------- export
 

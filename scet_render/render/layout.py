@@ -12,7 +12,6 @@ import numpy as np
 
 from estimator.setup import Setup
 
-
 #: Strobe light source radiance and ambient environment radiance (W sr^-1 m^-2, near-IR).
 #: With 40 lights of 0.2 mm at ~30 mm, skin and sclera under the strobe read ~1, a dielectric
 #: glint ~25, and the ambient adds ~0.07 to them over a 1 ms exposure (see rolling_shutter).

@@ -10,9 +10,8 @@ import numpy as np
 
 from estimator.eye import eye_rotation_matrix
 from estimator.setup import Setup
-from .layout import EyeLayout, PUPIL_OFFSET_M, SCENE_UNITS_PER_M, SCLERA_MASK_TEXELS
 
-
+from .layout import PUPIL_OFFSET_M, SCENE_UNITS_PER_M, SCLERA_MASK_TEXELS, EyeLayout
 
 # --------------------------------------------------------------------------- meshes
 

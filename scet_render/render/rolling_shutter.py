@@ -41,7 +41,6 @@ from .backend import activate, is_jit_variant
 from .layout import DEFAULT_AMBIENT_RADIANCE, SceneOptions
 from .scene import EyeScene, sensor_dict
 
-
 #: Trajectory samples per strobe period used to measure the eye's angular speed in a frame.
 SPEED_SAMPLES_PER_PERIOD = 16
 

@@ -41,11 +41,30 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.geometry import Camera
 from estimator.eye import eye_rotation_matrix
+from estimator.geometry import Camera
 from estimator.setup import Setup
-from .layout import (FACE_BEHIND_CENTER_M, SCENE_UNITS_PER_M, FILM_TO_OPENCV_PX, MOVING_KEYS, SceneOptions, EyeLayout, eye_layout)
-from .meshes import _GAZE_FRAME, _affine, _to_scene_units, _trimesh, cornea_mesh, eye_part_transforms, eyelid_meshes, sclera_opacity, skin_mesh
+
+from .layout import (
+    FACE_BEHIND_CENTER_M,
+    FILM_TO_OPENCV_PX,
+    MOVING_KEYS,
+    SCENE_UNITS_PER_M,
+    EyeLayout,
+    SceneOptions,
+    eye_layout,
+)
+from .meshes import (
+    _GAZE_FRAME,
+    _affine,
+    _to_scene_units,
+    _trimesh,
+    cornea_mesh,
+    eye_part_transforms,
+    eyelid_meshes,
+    sclera_opacity,
+    skin_mesh,
+)
 
 
 def sensor_dict(camera: Camera, spp: int = 16) -> dict:

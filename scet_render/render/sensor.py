@@ -84,8 +84,8 @@ import numpy as np
 
 from estimator.eye import CORNEA_REFRACTIVE_INDEX
 from estimator.setup import Sensor
-from .layout import DEFAULT_LIGHT_RADIANCE
 
+from .layout import DEFAULT_LIGHT_RADIANCE
 
 #: Normal-incidence Fresnel reflectance of the cornea, ((n - 1) / (n + 1))^2 = 0.0250 for
 #: n = 1.376: the share of an emitter's radiance that a glint shows to the camera.

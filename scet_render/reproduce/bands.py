@@ -35,10 +35,10 @@ from estimator.calibration import CORNEA_RADIUS_BOUNDS_M, Calibration
 from estimator.eye import gaze_direction
 from estimator.gaze import screen_intersection
 from estimator.metrics import angular_error_deg, summarize_errors
+
+from ..simulate import simulate_glints
 from .common import NOISE_PX, Context, calibrate_all, cornea_centers, fit_mapping
 from .fits import fit_center_radius, fit_orbit_prior, orbit_covariance
-from ..simulate import simulate_glints
-
 
 #: Eye motion allowed between two consecutive bands (degrees, SD per Fick angle): a saccade
 #: peaks near 600 deg/s, i.e. 0.5 deg in the 0.83 ms between bands at 20 bands per frame; a

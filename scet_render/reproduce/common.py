@@ -23,16 +23,28 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from estimator.calibration import CORNEA_RADIUS_BOUNDS_M, Calibration, LightingFit, OrbitFit, calibrate_joint, calibrate_lighting_joint, calibrate_lighting_per_frame, fit_gaze_mapping, orbit_law_of_sines, orbit_sphere_fit, pose_correction
+from estimator.calibration import (
+    CORNEA_RADIUS_BOUNDS_M,
+    Calibration,
+    LightingFit,
+    OrbitFit,
+    calibrate_joint,
+    calibrate_lighting_joint,
+    calibrate_lighting_per_frame,
+    fit_gaze_mapping,
+    orbit_law_of_sines,
+    orbit_sphere_fit,
+    pose_correction,
+)
 from estimator.cornea import FitProblem, fit_cornea
 from estimator.gaze import fit_cornea_centers
 from estimator.geometry import RigidPose
 from estimator.metrics import angular_error_deg
 from estimator.scene import load_scene
 from estimator.setup import Setup
-from .fits import fit_center_radius
-from ..simulate import parse_targets
 
+from ..simulate import parse_targets
+from .fits import fit_center_radius
 
 #: The true rig's offset from its nominal model: 1 degree about (1, 1, 0)/sqrt(2) through the
 #: calibration grid's centre, then 1 mm along x. Small enough to be an assembly error, large

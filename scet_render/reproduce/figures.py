@@ -6,9 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+
 from .paper_numbers import BAND_LABELS, FIGURES, PAPER_BANDS, PLANE_LABELS, TRANSLATION_LABELS
-
-
 
 # --------------------------------------------------------------------------- figures
 

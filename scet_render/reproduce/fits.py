@@ -16,10 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from estimator.geometry import Camera
 from estimator.cornea import FitProblem, fit_cornea, fit_covariance
 from estimator.gaze import ANGLE_BOUND_RAD
-
+from estimator.geometry import Camera
 
 
 def _check_glints(glints_px, mask, n):

@@ -8,15 +8,29 @@ import dataclasses
 
 import numpy as np
 
-from estimator.calibration import Calibration, calibrate_lighting_per_frame
+from estimator.calibration import Calibration, calibrate_lighting_per_frame, distance_reading
 from estimator.gaze import geometric_gaze
-from estimator.calibration import distance_reading
 from estimator.metrics import angular_error_deg, light_position_error_m
 from estimator.setup import Setup
+
 from ..simulate import simulate_glints
-from .common import Calibrations, Context, DA_DEPTHS_M, EQ1_9_TRUNCATE_RTOL, NOISE_PX, ReproductionConfig, TRANSLATION_HALF_M, _errors, _nan_errors, calibrate_all, cornea_centers, fit_mapping, geometric_calibrations, lighting_calibrations, trial_rng
-
-
+from .common import (
+    DA_DEPTHS_M,
+    EQ1_9_TRUNCATE_RTOL,
+    NOISE_PX,
+    TRANSLATION_HALF_M,
+    Calibrations,
+    Context,
+    ReproductionConfig,
+    _errors,
+    _nan_errors,
+    calibrate_all,
+    cornea_centers,
+    fit_mapping,
+    geometric_calibrations,
+    lighting_calibrations,
+    trial_rng,
+)
 
 # --------------------------------------------------------------------------- Fig. 5, Sec. 3.2
 

@@ -4,9 +4,7 @@ labels, and its small formatting helpers.
 
 from __future__ import annotations
 
-
 import numpy as np
-
 
 REPORT_NAME = "paper-reproduction.md"
 FIGURES = {"fig5": "fig5_calibration.png", "fig6": "fig6_error_maps.png",

@@ -12,10 +12,26 @@ from pathlib import Path
 import numpy as np
 
 from estimator.formats import atomic_write
+
 from .figures import _figures
-from .paper_numbers import BAND_LABELS, FIGURES, GEO_LABELS, MAPPING_LABELS, PAPER_BANDS, PAPER_GEO, PAPER_POLY, PAPER_RC_MM, PAPER_RC_SD_MM, REPORT_NAME, TARGET_BAND_ROBUSTNESS, TARGET_GEO_DEG, TRANSLATION_LABELS, _closer, _f, _table
-
-
+from .paper_numbers import (
+    BAND_LABELS,
+    FIGURES,
+    GEO_LABELS,
+    MAPPING_LABELS,
+    PAPER_BANDS,
+    PAPER_GEO,
+    PAPER_POLY,
+    PAPER_RC_MM,
+    PAPER_RC_SD_MM,
+    REPORT_NAME,
+    TARGET_BAND_ROBUSTNESS,
+    TARGET_GEO_DEG,
+    TRANSLATION_LABELS,
+    _closer,
+    _f,
+    _table,
+)
 
 # --------------------------------------------------------------------------- markdown
 

@@ -9,10 +9,27 @@ from pathlib import Path
 import numpy as np
 
 from estimator.metrics import summarize_errors
-from .common import stats, NOISE_PX, RIG_ROTATION_AXIS, RIG_ROTATION_DEG, RIG_TRANSLATION_M, ReproductionConfig, TRANSLATION_HALF_M, config_for, make_context, trial_rng
-from .paper import TRANSLATION_METHODS, TRANSLATION_PLANES, _mean, calibration_trial, solver_check, translation_trial
 
-
+from .common import (
+    NOISE_PX,
+    RIG_ROTATION_AXIS,
+    RIG_ROTATION_DEG,
+    RIG_TRANSLATION_M,
+    TRANSLATION_HALF_M,
+    ReproductionConfig,
+    config_for,
+    make_context,
+    stats,
+    trial_rng,
+)
+from .paper import (
+    TRANSLATION_METHODS,
+    TRANSLATION_PLANES,
+    _mean,
+    calibration_trial,
+    solver_check,
+    translation_trial,
+)
 
 # --------------------------------------------------------------------------- orchestration
 

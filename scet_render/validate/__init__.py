@@ -3,10 +3,15 @@ the feature-level simulator. ``run`` (the run), ``report`` (``validation.md``).
 """
 
 from .config import (
-    IDENTITY_RADIUS_PX, ValidationConfig, QUICK, FULL, ValidationRow, ValidationResult,
-    SIM_REPEATS
+    FULL,
+    IDENTITY_RADIUS_PX,
+    QUICK,
+    SIM_REPEATS,
+    ValidationConfig,
+    ValidationResult,
+    ValidationRow,
 )
-from .report import table_markdown, prior_table_markdown
+from .report import prior_table_markdown, table_markdown
 from .run import geometric_from, run_validation
 
 __all__ = [

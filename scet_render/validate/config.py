@@ -12,7 +12,6 @@ import numpy as np
 
 from estimator.calibration import Calibration
 
-
 #: A detection is the glint of the light it was matched to when that light's ground-truth glint
 #: is the labelled glint nearest to it and lies within this distance (px at full size, 640 x
 #: 480; halved at half size): identity, not centroid accuracy. The closest neighbouring glints

@@ -10,12 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.setup import Setup
 from estimator.formats import atomic_write
+from estimator.setup import Setup
 from estimator.tracker import BandPrior
+
 from .config import IDENTITY_RADIUS_PX
-
-
 
 # --------------------------------------------------------------------------- report
 
@@ -58,8 +57,8 @@ def _overlay(test_dir: Path, setup: Setup, samples, path: Path) -> None:
     import cv2
 
     from estimator.banding import band_layout
-    from estimator.glints import detect_glints
     from estimator.folders import frame_path, read_frame
+    from estimator.glints import detect_glints
 
     counts = {}
     for s in samples:

@@ -37,18 +37,29 @@ import numpy as np
 from estimator.banding import scaled_setup, strobe_setup
 from estimator.calibration import Calibration
 from estimator.eye import gaze_direction
-from estimator.gaze import geometric_gaze, polynomial_gaze, screen_intersection
+from estimator.folders import (
+    calibrate_from_folder,
+    save_calibration,
+    track_folder,
+    write_samples_csv,
+)
+from estimator.gaze import calibrated_problems, geometric_gaze, polynomial_gaze, screen_intersection
 from estimator.metrics import angular_error_deg, summarize_errors
 from estimator.scene import load_scene
 from estimator.setup import Setup
-from estimator.folders import (calibrate_from_folder, save_calibration, track_folder,
-                               write_samples_csv)
 from estimator.tracker import MAX_RESIDUAL_PX, RESIDUAL_TOO_LARGE
-from ..dataset import render_calibration
-from .config import (FULL, IDENTITY_RADIUS_PX, QUICK, SIM_REPEATS, ValidationConfig,
-                     ValidationResult, ValidationRow)
-from .report import _write_report
 
+from ..dataset import render_calibration
+from .config import (
+    FULL,
+    IDENTITY_RADIUS_PX,
+    QUICK,
+    SIM_REPEATS,
+    ValidationConfig,
+    ValidationResult,
+    ValidationRow,
+)
+from .report import _write_report
 
 # --------------------------------------------------------------------------- comparison
 
@@ -106,6 +117,7 @@ def _simulate(setup, calibration, method, mapping, samples, gaze_pts, noise_px, 
     if idx.size == 0:
         return err.ravel()
     rng = np.random.default_rng(seed)
+    problems = calibrated_problems(setup, calibration)
     for k in range(repeats):
         obs = simulate_glints(setup, gaze_pts[idx], noise_px=noise_px, noise_model="gaussian",
                               rng=rng)
@@ -114,9 +126,9 @@ def _simulate(setup, calibration, method, mapping, samples, gaze_pts, noise_px, 
             li = samples[i].light_index
             glints[r, li] = obs.glints_px[r, li]
         if method == "polynomial":
-            est = polynomial_gaze(setup, calibration, glints, mapping=mapping)
+            est = polynomial_gaze(setup, calibration, glints, mapping=mapping, problems=problems)
         else:
-            est = geometric_gaze(setup, calibration, glints)
+            est = geometric_gaze(setup, calibration, glints, problems=problems)
         err[k, idx] = angular_error_deg(est.point_m, gaze_pts[idx], setup.eye.rotation_center_m)
     return err.ravel()
 
@@ -129,6 +141,7 @@ def geometric_from(setup: Setup, calibration: Calibration, samples) -> list:
     with its prior (:func:`estimator.gaze.polynomial_gaze`): its optical axis is the ray from
     c_e through it."""
     out = []
+    problems = calibrated_problems(setup, calibration)
     for s in samples:
         if not s.ok:
             out.append(s)
@@ -142,7 +155,7 @@ def geometric_from(setup: Setup, calibration: Calibration, samples) -> list:
             continue
         g = np.full((1, setup.lights.count, 2), np.nan)
         g[0, s.light_index] = s.glints_px
-        est = geometric_gaze(setup, calibration, g)
+        est = geometric_gaze(setup, calibration, g, problems=problems)
         reason = str(est.reason[0])
         if reason == "ok" and not est.rms_px[0] <= MAX_RESIDUAL_PX:
             reason = RESIDUAL_TOO_LARGE

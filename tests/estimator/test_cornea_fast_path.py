@@ -1,4 +1,4 @@
-"""The fit path's packed rows (estimator.geometry.fit_rows._centre_fit_rows) against the general
+"""The fit path's packed rows (estimator.geometry.fit_rows.centre_fit_rows) against the general
 Jacobian terms: same glints, same normal equations, same fallbacks, reusable work arrays; and
 the small systems' closed-form solves."""
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from estimator.cornea import solve
-from estimator.geometry.fit_rows import _centre_fit_rows
+from estimator.geometry.fit_rows import centre_fit_rows
 from estimator.geometry import project_glints
 
 #: Relative agreement of the two paths' normal equations: both are exact to rounding, summed
@@ -46,7 +46,7 @@ def test_glints_match_the_projection(setup, problem):
     C = _centres(setup, np.random.default_rng(2), 50)
     g, v = project_glints(setup.camera, C, problem.cornea_radius_m, setup.lights_world_m)
     mask = np.isfinite(g).all(-1)
-    G, _, fast = _centre_fit_rows(setup.camera, C, problem.cornea_radius_m, setup.lights_world_m,
+    G, _, fast = centre_fit_rows(setup.camera, C, problem.cornea_radius_m, setup.lights_world_m,
                                   np.where(mask[..., None], g, 0.0), mask)
     assert fast.all()
     # Row 3 holds the residuals against the projection's glints: zero to rounding of pixels.
@@ -85,7 +85,7 @@ def test_awkward_samples_take_the_general_path(setup, problem, observed):
     L = np.broadcast_to(problem.lights_world_m, (6, 40, 3)).copy()
     L[1, 7] = x[1] + 0.5 * (setup.camera.position_m - x[1])
     L[2, 9] = x[2] + 0.3 * problem.cornea_radius_m
-    _, _, fast = _centre_fit_rows(setup.camera, x, problem.cornea_radius_m, L, g, v)
+    _, _, fast = centre_fit_rows(setup.camera, x, problem.cornea_radius_m, L, g, v)
     assert fast.tolist() == [True, False, False, True, True, True]
     _assert_same(solve.normal_equations("center", problem, x, g, v, L), _general(problem, x, g, v, L))
 

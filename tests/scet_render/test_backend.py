@@ -8,7 +8,14 @@ from pathlib import Path
 
 import pytest
 
-from scet_render.render import LLVM_ENV, VARIANT_ENV, choose_variant, find_libllvm, is_jit_variant, llvm_version
+from scet_render.render import (
+    LLVM_ENV,
+    VARIANT_ENV,
+    choose_variant,
+    find_libllvm,
+    is_jit_variant,
+    llvm_version,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 

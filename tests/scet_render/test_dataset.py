@@ -19,11 +19,22 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.banding import row_pulse_weights
+from estimator.banding import row_pulse_weights, strobe_instant
 from estimator.geometry import Camera
 from estimator.scene import load_scene
-from scet_render.dataset import FORMAT, LABELS_NAME, TRAJECTORY_KINDS, VERSION, DatasetError, DatasetMismatchError, dataset_trajectory, frame_labels, iter_labels, read_exr, render_dataset
-from estimator.banding import strobe_instant
+from scet_render.dataset import (
+    FORMAT,
+    LABELS_NAME,
+    TRAJECTORY_KINDS,
+    VERSION,
+    DatasetError,
+    DatasetMismatchError,
+    dataset_trajectory,
+    frame_labels,
+    iter_labels,
+    read_exr,
+    render_dataset,
+)
 from scet_render.dataset.manifest import read_manifest, setup_fingerprint
 from scet_render.render import SensorModel
 from scet_render.simulate import ground_truth_glints

@@ -10,7 +10,17 @@ from hypothesis import strategies as st
 from estimator.eye import Eye, gaze_direction
 from estimator.geometry import rotation_matrix
 from estimator.setup import Screen
-from scet_render.motion import FixationalNoise, SaccadeModel, SegmentKind, concatenate, fixation_sequence, grid_sequence, main_sequence, pursuit, saccade_sequence
+from scet_render.motion import (
+    FixationalNoise,
+    SaccadeModel,
+    SegmentKind,
+    concatenate,
+    fixation_sequence,
+    grid_sequence,
+    main_sequence,
+    pursuit,
+    saccade_sequence,
+)
 
 
 class TOL:

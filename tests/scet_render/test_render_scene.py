@@ -16,11 +16,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from estimator.geometry import Camera
 from estimator.eye import gaze_direction
-from estimator.geometry import look_at_rotation
+from estimator.geometry import Camera, look_at_rotation
 from estimator.scene import load_scene
-from scet_render.render import SCENE_UNITS_PER_M, EyeScene, SceneOptions, cornea_mesh, describe_scene, eye_layout, export_mitsuba, sclera_opacity, sensor_dict
+from scet_render.render import (
+    SCENE_UNITS_PER_M,
+    EyeScene,
+    SceneOptions,
+    cornea_mesh,
+    describe_scene,
+    export_mitsuba,
+    eye_layout,
+    sclera_opacity,
+    sensor_dict,
+)
 
 
 @dataclass(frozen=True)

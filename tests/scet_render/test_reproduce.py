@@ -8,10 +8,20 @@ import pytest
 from estimator.calibration import CORNEA_RADIUS_BOUNDS_M
 from estimator.gaze import geometric_gaze
 from estimator.metrics import angular_error_deg
+from scet_render.reproduce import (
+    ReproductionConfig,
+    band_rows,
+    calibration_trial,
+    fit_center_radius,
+    fit_orbit_prior,
+    make_context,
+    orbit_covariance,
+    rows_mask,
+    run_experiments,
+    run_reproduction,
+    trial_rng,
+)
 from scet_render.reproduce.paper_numbers import FIGURES
-from scet_render.reproduce import ReproductionConfig, calibration_trial, make_context, run_experiments, run_reproduction, trial_rng
-from scet_render.reproduce import band_rows, rows_mask
-from scet_render.reproduce import fit_center_radius, fit_orbit_prior, orbit_covariance
 from scet_render.simulate import simulate_glints
 
 HEADINGS = ("# SCET paper reproduction", "## Summary", "## Setup and protocol",

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 from estimator.banding import band_layout, row_pulse_weights
-from estimator.geometry import Camera
 from estimator.eye import eye_rotation_matrix
+from estimator.geometry import Camera
 from estimator.scene import load_scene
 from estimator.setup import Strobe
 from scet_render.motion import fixation_sequence

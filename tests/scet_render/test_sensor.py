@@ -6,7 +6,12 @@ import numpy as np
 import pytest
 
 from estimator.scene import load_scene
-from scet_render.render import CORNEA_FRESNEL_REFLECTANCE, GLINT_SATURATION_FRACTION, REFERENCE_EMITTER_RADIANCE, SensorModel
+from scet_render.render import (
+    CORNEA_FRESNEL_REFLECTANCE,
+    GLINT_SATURATION_FRACTION,
+    REFERENCE_EMITTER_RADIANCE,
+    SensorModel,
+)
 
 #: Pixels per flat field: 2^16 samples put the standard error of a variance at
 #: sqrt(2 / n) = 0.55 % of it.

@@ -6,8 +6,13 @@ import numpy as np
 import pytest
 
 from estimator.scene import load_scene
-from scet_render.simulate import (glint_statistics, load_observations, parse_targets,
-                                  save_observations, simulate_glints)
+from scet_render.simulate import (
+    glint_statistics,
+    load_observations,
+    parse_targets,
+    save_observations,
+    simulate_glints,
+)
 
 
 @pytest.fixture(scope="module")

@@ -11,10 +11,10 @@ import math
 import numpy as np
 import pytest
 
-from estimator.calibration import Calibration
-from estimator.scene import load_scene
-from estimator.folders import read_samples_csv
 from estimator.banding import calibration_setup, strobe_setup
+from estimator.calibration import Calibration
+from estimator.folders import read_samples_csv
+from estimator.scene import load_scene
 from scet_render.validate import QUICK, ValidationConfig, run_validation
 
 pytest.importorskip("mitsuba", reason="end-to-end validation renders with Mitsuba 3")

@@ -1,0 +1,237 @@
+"""The matcher's hypothesis search: coarse hypotheses over a grid of eye rotations, gated
+assignments of glints to predicted glints, small fits that refine a hypothesis, and the final
+assignment with the lights' order enforced (steps 2-5 of :mod:`estimator.matching.matcher`).
+
+:class:`HypothesisSearch` holds these steps apart from the matcher's public face; it uses the
+matcher's setup, parameters, calibrated problem and prediction grid.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from ..cornea import fit_cornea
+from .model import _Hypothesis
+
+
+class HypothesisSearch:
+    """Steps of :class:`estimator.matching.GlintMatcher`'s search (a base class: it reads
+    ``self.params``, ``self.problem``, ``self.lights_world_m``, the prediction grid and
+    ``self._predict_x`` of the matcher)."""
+
+    def _shift(self, assign, step: int) -> np.ndarray:
+        """Every matched light moved ``step`` places along its own arc (-1 where that leaves
+        the arc)."""
+        out = np.full_like(assign, -1)
+        m = assign >= 0
+        moved = assign[m] + step
+        n = self.lights_world_m.shape[0]
+        inside = (moved >= 0) & (moved < n)
+        same = np.zeros_like(inside)
+        same[inside] = self.group[moved[inside]] == self.group[assign[m][inside]]
+        out[np.flatnonzero(m)[same]] = moved[same]
+        return out
+
+    def _coarse(self, g, lo, hi, nodes, count) -> list[np.ndarray]:
+        """Angles of the ``count`` best local minima of the score over the grid (or over the
+        grid nodes where ``nodes`` is True)."""
+        p = self.params
+        pred, vis = self.grid_glints_px, self.grid_visible
+        v = pred[..., 1]
+        cand = vis & (v >= lo - p.band_margin_px) & (v <= hi + p.band_margin_px)
+        if nodes is not None:
+            cand &= nodes[:, None]
+        n_nodes, n_lights = cand.shape
+        pair = np.flatnonzero(cand)  # (node, light) pairs, node-major
+        if pair.size == 0:
+            return []
+        node, light = pair // n_lights, pair % n_lights
+        gate2 = p.coarse_gate_px ** 2
+        # Squared distance of every detection to every candidate glint of every node.
+        du = pred[node, light, 0][:, None] - g[None, :, 0]
+        dv = pred[node, light, 1][:, None] - g[None, :, 1]
+        d2 = du * du + dv * dv  # (pairs, k)
+        first = np.flatnonzero(np.concatenate([[True], node[1:] != node[:-1]]))
+        used = node[first]
+        # A detection is scored at its node's nearest candidate; a candidate well inside the
+        # band is missing when no detection lies within the gate. The grid is up to 2 px off,
+        # so distances are scored against the coarse gate: a detection at the coarse gate
+        # costs as much as an unmatched one.
+        near = np.minimum(np.minimum.reduceat(d2, first, axis=0), gate2)  # (nodes used, k)
+        vc = v[node, light]
+        inside = (vc >= lo + p.band_margin_px) & (vc <= hi - p.band_margin_px)
+        missing = np.add.reduceat((inside & (d2.min(axis=1) > gate2)).astype(np.float64), first)
+        unmatched_cost = p.unmatched_cost
+        score = np.full(n_nodes, np.inf)
+        score[used] = near.sum(axis=1) / gate2 * unmatched_cost + p.missing_cost * missing
+        score = score.reshape(self._grid_shape)
+        # Local minima over 3x3 neighbourhoods, best first; a node no better than leaving
+        # every detection unmatched is no hypothesis.
+        padded = np.pad(score, 1, constant_values=np.inf)
+        h, w = score.shape
+        nb = np.min([padded[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx]
+                     for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx], axis=0)
+        flat = score.ravel()
+        minima = np.flatnonzero((flat <= nb.ravel()) & (flat < g.shape[0] * unmatched_cost))
+        order = minima[np.argsort(flat[minima], kind="stable")][:count]
+        return [self.grid_angles_rad[i] for i in order]
+
+    def _assign(self, g, pred, cand, gate):
+        """Gated optimal assignment: (k,) light per detection (-1 none) and its distance."""
+        k = g.shape[0]
+        lights = np.flatnonzero(cand)
+        assign = np.full(k, -1, dtype=np.int64)
+        dist = np.full(k, np.nan)
+        if lights.size == 0:
+            return assign, dist
+        d2 = ((g[:, None, :] - pred[None, lights, :]) ** 2).sum(-1)
+        gate2 = gate * gate
+        big = 1e6 * gate2
+        # Columns: the candidates, then one "unmatched" option per detection at the gate's cost.
+        cost = np.full((k, lights.size + k), big)
+        cost[:, : lights.size] = np.where(d2 <= gate2, d2, big)
+        cost[np.arange(k), lights.size + np.arange(k)] = gate2
+        r, c = linear_sum_assignment(cost)
+        real = c < lights.size
+        r, c = r[real], c[real]
+        real = d2[r, c] <= gate2
+        assign[r[real]] = lights[c[real]]
+        dist[r[real]] = np.sqrt(d2[r[real], c[real]])
+        return assign, dist
+
+    def _fit(self, g, assigns, X, fit_prior=None):
+        """Refit every hypothesis from X (H, p) with its matched detections, in one batched
+        call, with the Gaussian prior ``fit_prior`` (mean, information) where given; returns
+        (X, ok (H,))."""
+        # Only the lights matched in some hypothesis enter the fit (a fraction of the rig:
+        # the fit's cost is the projection of every light it carries).
+        used = np.unique(np.concatenate([a[a >= 0] for a in assigns]))
+        slot = np.full(self.lights_world_m.shape[0], -1)
+        slot[used] = np.arange(used.size)
+        glints = np.full((len(assigns), used.size, 2), np.nan)
+        for h, assign in enumerate(assigns):
+            m = assign >= 0
+            glints[h, slot[assign[m]]] = g[m]
+        problem = replace(self.problem, lights_world_m=self.lights_world_m[used])
+        mean, info = (None, None) if fit_prior is None else fit_prior
+        fit = fit_cornea(problem, glints, None, X, model=self.params.model, prior_mean=mean,
+                         prior_information=info)
+        x_new = fit.angles_rad if self.params.model == "orbit" else fit.center_m
+        ok = fit.ok & np.isfinite(x_new).all(axis=1)
+        return np.where(ok[:, None], x_new, X), ok
+
+    def _candidates(self, X, lo, hi):
+        """Predicted glints (H, n, 2), candidates and glints well inside the band (H, n)."""
+        pred, vis = self._predict_x(X)
+        v = pred[..., 1]
+        m = self.params.band_margin_px
+        return pred, vis & (v >= lo - m) & (v <= hi + m), vis & (v >= lo + m) & (v <= hi - m)
+
+    def _refine(self, g, lo, hi, X, first_gate, first_assign=None, fit_prior=None
+                ) -> list[_Hypothesis]:
+        """Match -> refit -> re-predict -> re-match every start in X (H, p) until its
+        assignment is stable; hypotheses that reach the same assignment are merged.
+        ``first_assign`` (H lists of (k,) lights) replaces the first round's matching;
+        ``fit_prior`` (mean, information) enters every refit."""
+        p = self.params
+        X = np.array(X, dtype=np.float64)
+        H = X.shape[0]
+        gate = np.full(H, first_gate)
+        prev: list = [None] * H
+        fit_ok = np.zeros(H, dtype=bool)
+        iters = np.zeros(H, dtype=int)
+        active = np.ones(H, dtype=bool)
+        alive = np.ones(H, dtype=bool)
+        for it in range(p.max_iter):
+            idx = np.flatnonzero(active)
+            if idx.size == 0:
+                break
+            given = it == 0 and first_assign is not None
+            if not given or any(first_assign[h] is None for h in idx):
+                pred, cand, _ = self._candidates(X[idx], lo, hi)
+            to_fit, assigns = [], []
+            seen = {}
+            for a, h in enumerate(idx):
+                if given and first_assign[h] is not None:
+                    assign = first_assign[h]
+                else:
+                    assign, _ = self._assign(g, pred[a], cand[a], gate[h])
+                key = assign.tobytes()
+                if not (assign >= 0).any() or (key in seen and gate[h] == gate[seen[key]]):
+                    active[h] = alive[h] = False  # nothing matched, or a duplicate
+                    continue
+                seen[key] = h
+                if prev[h] is not None and np.array_equal(assign, prev[h]) and gate[h] == p.gate_px:
+                    active[h] = False
+                    continue
+                prev[h] = assign
+                to_fit.append(h)
+                assigns.append(assign)
+            if to_fit:
+                X[to_fit], ok = self._fit(g, assigns, X[to_fit], fit_prior)
+                fit_ok[to_fit] = ok
+                iters[to_fit] += 1
+                gate[np.array(to_fit)[ok]] = p.gate_px
+        keep = np.flatnonzero(alive)
+        if keep.size == 0:
+            return []
+        # Final assignment at the final gate, the arc order enforced, and one more refit where
+        # it changed the matches.
+        X = X[keep]
+        pred, cand, inside = self._candidates(X, lo, hi)
+        final = [self._final_assign(g, pred[a], cand[a]) for a in range(keep.size)]
+        changed = [a for a in range(keep.size) if (final[a][0] >= 0).any() and (
+            prev[keep[a]] is None or not np.array_equal(final[a][0], prev[keep[a]]))]
+        ok = fit_ok[keep].copy()
+        if changed:
+            # Hypotheses whose matches stand keep their pose, predictions and matches.
+            X[changed], ok_c = self._fit(g, [final[a][0] for a in changed], X[changed], fit_prior)
+            ok[changed] = ok_c
+            pred[changed], cand[changed], inside[changed] = self._candidates(X[changed], lo, hi)
+            for a in changed:
+                final[a] = self._final_assign(g, pred[a], cand[a])
+        sigma2 = p.noise_px ** 2
+        out = []
+        for a in range(keep.size):
+            assign, dist = final[a]
+            matched = assign >= 0
+            detected = np.zeros(self.lights_world_m.shape[0], dtype=bool)
+            detected[assign[matched]] = True
+            score = (np.sum(dist[matched] ** 2) / sigma2
+                     + (~matched).sum() * p.unmatched_cost
+                     + p.missing_cost * (inside[a] & ~detected).sum())
+            out.append(_Hypothesis(X[a].copy(), assign, dist, pred[a], cand[a], float(score),
+                                   int(iters[keep[a]]), bool(ok[a])))
+        return out
+
+    def _final_assign(self, g, pred, cand):
+        """Assignment at the final gate with the arc order enforced, and its distances (NaN
+        where unmatched)."""
+        assign, dist = self._assign(g, pred, cand, self.params.gate_px)
+        assign = self._enforce_order(g, pred, assign)
+        return assign, np.where(assign >= 0, dist, np.nan)
+
+    def _enforce_order(self, g, pred, assign):
+        """Drop matches that break the lights' order along their arc (module docstring, 3)."""
+        assign = assign.copy()
+        for _ in range(assign.size):
+            det = np.flatnonzero(assign >= 0)
+            if det.size < 2:
+                break
+            lights = assign[det]
+            order = np.lexsort((lights, self.group[lights]))
+            det, lights = det[order], lights[order]
+            same = self.group[lights[1:]] == self.group[lights[:-1]]
+            dp = pred[lights[1:]] - pred[lights[:-1]]
+            dq = g[det[1:]] - g[det[:-1]]
+            bad = np.flatnonzero(same & ((dp * dq).sum(axis=1) <= 0))
+            if bad.size == 0:
+                break
+            a, b = det[bad[0]], det[bad[0] + 1]
+            ra = np.linalg.norm(g[a] - pred[assign[a]])
+            rb = np.linalg.norm(g[b] - pred[assign[b]])
+            assign[a if ra >= rb else b] = -1
+        return assign
