@@ -206,15 +206,17 @@ class StrobeLink:
             raise StrobeError(f"{self.port}: reply {line!r} is not ASCII (wrong baud rate?)") from None
 
     def command(self, text: str) -> str:
-        """Send one command line and return its reply line (a greeting in between, from a
-        board that reset, is skipped)."""
+        """Send one command line and return its reply line (the greeting of a board that
+        reset, or its tail, is skipped)."""
         if "\n" in text or "\r" in text:
             raise ValueError(f"command {text!r}: one line, without line breaks")
         self._ser.reset_input_buffer()
         self._buf = b""
         self._ser.write(text.encode("ascii") + b"\n")
         line = self._read_line(self.timeout_s)
-        if line == _GREETING:
+        # A board that reset (opening an Arduino's port does) greets; the port may also have
+        # been opened in the middle of the greeting, leaving its tail.
+        while line and _GREETING.endswith(line):
             line = self._read_line(self.timeout_s)
         return line
 

@@ -21,8 +21,8 @@ if os.environ.get("SCET_REQUIRE_ALL") == "1":
     settings.load_profile("ci")
 
 
-#: Modules of the extras in pyproject.toml ('render', 'fast', 'test') and of matplotlib.
-EXTRAS = ("mitsuba", "drjit", "OpenEXR", "trimesh", "numba", "hypothesis", "matplotlib")
+#: Modules of the extras in pyproject.toml ('render', 'fast', 'test', 'hardware') and of matplotlib.
+EXTRAS = ("mitsuba", "drjit", "OpenEXR", "trimesh", "numba", "hypothesis", "matplotlib", "serial")
 
 
 def pytest_sessionstart(session):

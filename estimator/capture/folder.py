@@ -257,7 +257,7 @@ class CaptureFolder:
         for f in range(last + 1):
             if f not in self.index:
                 yield CaptureFrame(f, f * self.frame_period_s + self.timestamp_offset_s, None,
-                                   f"{self._list}: frame {f} dropped (SensorTimestamp gap)", {})
+                                   f"{self._list}: frame {f} dropped (a SensorTimestamp gap): missing", {})
                 continue
             number, d, start, problem = self.index[f]
             if problem is not None:

@@ -59,7 +59,7 @@ def test_dropped_frames_leave_reasoned_slots(tmp_path):
     got = list(cap.frames())
     assert [f.index for f in got] == list(range(8))
     assert [f.index for f in got if f.image is None] == [3, 4] == cap.dropped
-    assert "frame 3 dropped (SensorTimestamp gap)" in got[3].reason
+    assert "frame 3 dropped (a SensorTimestamp gap): missing" in got[3].reason
 
 
 @pytest.mark.parametrize("bad, message", [
