@@ -94,7 +94,20 @@ def cmd_capture(args) -> int:
             strobe = link.apply(pulses=strobe["pulses"], width_ticks=strobe["width_ticks"],
                                 period_ticks=strobe["period_ticks"], trim_256th=strobe["trim_256th"],
                                 mode=strobe["mode"]).to_dict()
-    settings = CaptureSettings(frames=args.frames, frame_duration_us=plan.controls["FrameDurationLimits"][0],
+    strobe_model = None
+    if args.single:
+        # Single-pulse calibration frames: the tracker reads every visible row as lit by one
+        # pulse placed in the window all rows share, [R(N-1) - exposure, R(0)] (Eqs. (2)-(3));
+        # lock the strobe's phase there (scet strobe phase) before capturing.
+        s = plan.sensor
+        span = (s.visible_lines - 1) * s.frame_period_s / s.total_lines
+        slack = s.exposure_s - span
+        if slack <= plan.pulse_s:
+            raise ValueError(f"--single: an exposure of {s.exposure_s * 1e6:.0f} us does not cover "
+                             f"the readout span {span * 1e6:.0f} us plus the pulse; raise --exposure-us")
+        strobe_model = {"pulses_per_frame": 1, "pulse_s": plan.pulse_s,
+                        "period_s": s.frame_period_s, "phase_s": -0.5 * slack - 0.5 * plan.pulse_s}
+    settings = CaptureSettings(frames=args.frames, strobe_model=strobe_model, frame_duration_us=plan.controls["FrameDurationLimits"][0],
                                exposure_us=plan.controls["ExposureTime"], analogue_gain=args.gain,
                                raw_format=args.raw_format, strobe=strobe,
                                extra={"plan": {"profile": plan.profile, "total_lines": plan.sensor.total_lines}})

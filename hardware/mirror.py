@@ -178,7 +178,8 @@ def light_list_toml(p: MirrorParams = MirrorParams(), pose: dict | None = None) 
              f"radius {p.radius_mm:g} mm: scet hardware mirror",
              "[[lights]]", 'name = "wire_mirror"', 'kind = "list"',
              f"source_diameter_mm = {p.wire_diameter_mm:g}", "positions_m = ["]
-    lines += [f"    [{x:.9f}, {y:.9f}, {z:.9f}]," for x, y, z in pos]
+    # Full precision: the list is the arc to the last bit, not a rounded copy of it.
+    lines += [f"    [{float(x)!r}, {float(y)!r}, {float(z)!r}]," for x, y, z in pos]
     lines.append("]")
     if pose:
         lines.append("[lights.pose]")
