@@ -1,7 +1,9 @@
 # SCET: `make demo` runs the main job on the default scene, `make test` runs the test suite.
 # Both set everything up first: a virtual environment in .venv with the package and all its
-# extras, and (as root, on Debian) libllvm19 for Mitsuba's LLVM backend. `make test-base` runs
-# the estimator's tests in a second environment, .venv-base, with the base package alone.
+# extras, and (as root, on Debian) libllvm19 for Mitsuba's LLVM backend and the AVR toolchain
+# (gcc-avr, avr-libc, simavr) for the strobe firmware. `make firmware` builds its .hex;
+# `make test-base` runs the estimator's tests in a second environment, .venv-base, with the
+# base package alone.
 
 PYTHON ?= python3
 VENV   ?= .venv
@@ -14,7 +16,7 @@ PYTEST_ARGS ?=
 # Small matrices only: threaded BLAS on 2 cores oversubscribes (measured 40x slower joint fits).
 export OPENBLAS_NUM_THREADS ?= 1
 
-.PHONY: setup demo test test-base test-slow bench clean
+.PHONY: setup demo test test-base test-slow bench firmware clean
 
 setup: $(STAMP)
 
@@ -23,7 +25,14 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[all]'
 	bash tools/install-llvm.sh
+	bash tools/install-avr.sh
 	touch $(STAMP)
+
+# The strobe firmware for the Arduino (hardware/firmware/build/strobe.hex) and its simulator
+# harness; installs the AVR toolchain first when run as root on Debian.
+firmware:
+	bash tools/install-avr.sh
+	$(MAKE) -C hardware/firmware sim
 
 # The main job on the default scene: render, calibrate, track, compare (about 1-2 minutes).
 demo: $(STAMP)
@@ -58,6 +67,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_gaze.py
 	$(PY) benchmarks/bench_glints.py
 	$(PY) benchmarks/bench_render.py
+	$(PY) benchmarks/bench_capture.py
 
 clean:
-	rm -rf $(VENV) $(BASE_VENV) build *.egg-info .pytest_cache .hypothesis
+	rm -rf $(VENV) $(BASE_VENV) build *.egg-info .pytest_cache .hypothesis hardware/firmware/build

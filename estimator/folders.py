@@ -48,6 +48,7 @@ from .formats import (
     check_format,
     read_json,
 )
+from .capture import CaptureError, CaptureFolder, is_capture_folder
 from .gaze import fit_cornea_centers
 from .glints import NO_BAND, detect_glints
 from .matching import GlintMatcher
@@ -109,6 +110,8 @@ def read_timing(folder, setup: Setup) -> FolderTiming:
         Neither file, or a malformed one (the message names the file and key).
     """
     folder = Path(folder)
+    if is_capture_folder(folder):
+        return _capture_timing(_open_capture(folder, setup))
     path = folder / TIMING_NAME
     if path.is_file():
         return _parse_timing(path)
@@ -128,6 +131,26 @@ def read_timing(folder, setup: Setup) -> FolderTiming:
         return FolderTiming({f: f * dt for f in range(frames)}, None, None, manifest)
     raise TrackerInputError(f"{folder}: no {TIMING_NAME} (frame index -> frame start time) and "
                             f"no {MANIFEST_NAME}; cannot time the frames")
+
+
+def _open_capture(folder: Path, setup: Setup) -> CaptureFolder:
+    try:
+        return CaptureFolder(folder, black_level_out_dn=setup.sensor.black_level_dn,
+                             size_px=(setup.camera.width_px, setup.camera.height_px))
+    except CaptureError as exc:
+        raise TrackerInputError(str(exc)) from None
+
+
+def _capture_timing(cap: CaptureFolder) -> FolderTiming:
+    """A capture's frame starts (SensorTimestamp, the first row's readout on the Pi), and
+    the exposure and strobe model it records (``exposure_s``, ``strobe_model``)."""
+    starts = {f: start for f, (_, _, start, _) in cap.index.items()}
+    starts.update({f: f * cap.frame_period_s + cap.timestamp_offset_s for f in cap.dropped})
+    exposure = cap.header.get("exposure_s")
+    strobe = cap.header.get("strobe_model")
+    return FolderTiming(dict(sorted(starts.items())),
+                        float(exposure) if isinstance(exposure, (int, float)) else None,
+                        strobe if isinstance(strobe, dict) else None, cap.path / "capture.json")
 
 
 def _parse_timing(path: Path) -> FolderTiming:
@@ -187,7 +210,14 @@ def read_frame(path) -> np.ndarray:
 
 def iter_folder(folder, setup: Setup) -> Iterator[tuple[int, float, np.ndarray | None, str | None]]:
     """(frame index, frame start s, frame or None, error message or None) for every frame
-    of the timing sidecar, in index order. A missing or unreadable frame yields None and why."""
+    of the timing sidecar, in index order. A missing or unreadable frame yields None and why.
+
+    A capture folder (``capture.json``, :mod:`estimator.capture`) gives every frame slot from
+    its SensorTimestamps; dropped frames and bad ones come as None with the reason."""
+    if is_capture_folder(folder):
+        for fr in _open_capture(folder, setup).frames():
+            yield fr.index, fr.start_s, fr.image, fr.reason
+        return
     timing = read_timing(folder, setup)
     for f in sorted(timing.frame_start_s):
         path = frame_path(folder, f)

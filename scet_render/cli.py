@@ -151,6 +151,13 @@ def cmd_render(args) -> int:
         bar.close()
     print(f"dataset {summary.path}: {len(summary.frames_rendered)} frames rendered, "
           f"{len(summary.frames_skipped)} already complete")
+    if args.raw:
+        from scet_hardware.capture.replay import replay_dataset
+
+        # The same folder becomes a capture folder too: frames/NNNNNN.raw as the sensor reads
+        # them out, read back through the one capture reader by calibrate and track.
+        replay_dataset(summary.path, summary.path, scene=args.scene, raw_format=args.raw)
+        print(f"raw frames ({args.raw}, Bayer mosaic) and capture.json written to {summary.path}")
     return 0
 
 
@@ -315,6 +322,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb when libLLVM >= 16 is found, "
                                      "else scalar_rgb)")
     p.add_argument("--cornea", choices=("dielectric", "conductor"), default="dielectric")
+    p.add_argument("--raw", nargs="?", const="SGBRG10_CSI2P", metavar="FORMAT",
+                   help="also write the frames as the OV5647 reads them out (SGBRG10_CSI2P, the "
+                        "default, or SGBRG10), with capture.json, so they read as a capture")
     p.set_defaults(func=cmd_render)
 
     p = sub.add_parser("export-mitsuba", help="write a Mitsuba XML scene (+ meshes) of a scene file")
@@ -360,6 +370,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     p.set_defaults(func=cmd_demo)
+
+    from scet_hardware.cli import register as register_hardware
+
+    register_hardware(sub)   # scet strobe, scet capture, scet hardware
     return ap
 
 
