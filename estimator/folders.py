@@ -33,7 +33,9 @@ from typing import Callable, Iterator
 import cv2
 import numpy as np
 
-from .calibration import Calibration, calibrate_joint, fit_gaze_mapping
+from .banding import NO_PULSE, row_strobe
+from .calibration import Calibration, calibrate_joint, calibration_warnings, fit_gaze_mapping
+from .capture import CaptureError, CaptureFolder, is_capture_folder
 from .formats import (
     FRAMES_DIR,
     LABELS_NAME,
@@ -48,7 +50,6 @@ from .formats import (
     check_format,
     read_json,
 )
-from .capture import CaptureError, CaptureFolder, is_capture_folder
 from .gaze import fit_cornea_centers
 from .glints import NO_BAND, detect_glints
 from .matching import GlintMatcher
@@ -264,6 +265,43 @@ class CalibrationGlints:
     frames: tuple
 
 
+#: Calibration frames: the least share of a pulse every visible row must collect (a row that
+#: collects less is lit at the frame's instant but dimmer, which the detector's noise model
+#: does not expect; calibration_setup's frames collect all of it).
+SINGLE_PULSE_MIN_WEIGHT = 0.99
+#: How calibration frames are made, for the message that refuses banded ones.
+MAKE_CALIBRATION_FRAMES = (
+    "calibration needs single-pulse frames, every visible row lit by the same whole pulse "
+    "(Sec. 2.4): render them with `scet render SCENE --calibration 5x5 --out DIR`, or capture "
+    "them with the strobe in single-pulse mode (hardware/README.md)")
+
+
+def check_single_pulse(folder, setup: Setup, timing: FolderTiming) -> None:
+    """Refuse a folder whose timing is not that of single-pulse calibration frames.
+
+    Every visible row of a calibration frame must collect the same pulse, whole (the frame is
+    then one instant; Sec. 2.4 of the SCET paper). Banded frames (several pulses per frame, or
+    one pulse that lights only a band) hold glints of several instants, or of some rows only,
+    and give a wrong calibration (a 7.8 mm cornea came out as 7.27 mm from banded frames).
+    """
+    frames = sorted(timing.frame_start_s)
+    f = frames[0] if frames else 0
+    pulse, _, weight = row_strobe(setup.sensor, setup.strobe, f)
+    lit = pulse != NO_PULSE
+    source = timing.source or "the scene"
+    if np.unique(pulse[lit]).size > 1:
+        raise TrackerInputError(
+            f"{folder}: frames are banded: {np.unique(pulse[lit]).size} strobe pulses light "
+            f"frame {f} ({setup.strobe.pulses_per_frame} per frame, timing from {source}); "
+            + MAKE_CALIBRATION_FRAMES)
+    if not lit.all() or weight.min() < SINGLE_PULSE_MIN_WEIGHT:
+        share = float(np.mean(weight >= SINGLE_PULSE_MIN_WEIGHT))
+        raise TrackerInputError(
+            f"{folder}: the strobe lights only {share:.0%} of the rows of frame {f} whole "
+            f"(exposure {setup.sensor.exposure_s * 1e3:.3g} ms, pulse "
+            f"{setup.strobe.pulse_s * 1e6:.4g} us, timing from {source}); " + MAKE_CALIBRATION_FRAMES)
+
+
 def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
     """Detect and identify the glints of a folder of single-pulse calibration frames.
 
@@ -272,6 +310,7 @@ def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
     folder = Path(folder)
     timing = read_timing(folder, setup)
     cal_setup = timing.apply(setup)
+    check_single_pulse(folder, cal_setup, timing)
     targets = read_targets(folder)
     matcher = GlintMatcher(cal_setup)
     n = cal_setup.lights.count
@@ -315,6 +354,11 @@ def calibrate_from_folder(folder, setup: Setup) -> Calibration:
                                       cg.targets_m, mask,
                                       center0_m=cal_setup.eye.cornea_center(0.0, 0.0))
     cal = Calibration.from_fits(lighting, orbit)
+    total = len(read_targets(folder))
+    cal = cal.with_quality(
+        rms_px=float(lighting.rms_px), frames_used=len(cg.frames), frames_total=total,
+        warnings=calibration_warnings(lighting, orbit, frames_used=len(cg.frames),
+                                      frames_total=total))
     centers = fit_cornea_centers(cal_setup, cal, cg.glints_px, mask)
     ok = centers.ok
     m = int(ok.sum())

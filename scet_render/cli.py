@@ -7,6 +7,7 @@ scene file, a bad target spec) print one line naming the problem and exit with s
 from __future__ import annotations
 
 import argparse
+import re
 import sys
 from pathlib import Path
 
@@ -136,12 +137,43 @@ class _StageBars:
             self.bar = None
 
 
+def _grid_pattern(text: str) -> tuple[int, int]:
+    m = re.fullmatch(r"(\d+)x(\d+)", text or "")
+    if not m or not (2 <= int(m.group(1)) <= 50 and 2 <= int(m.group(2)) <= 50):
+        raise ValueError(f"--calibration: expected a pattern COLSxROWS such as 3x3, 5x5 or 6x6 "
+                         f"(2-50 each), got {text!r}")
+    return int(m.group(1)), int(m.group(2))
+
+
+def cmd_render_calibration(args, setup) -> int:
+    from .dataset import render_calibration
+
+    cols, rows = _grid_pattern(args.calibration)
+    bar, update = _progress_bar(cols * rows, "frame", f"render calibration {setup.name}")
+    try:
+        out = render_calibration(setup, args.out, spp=args.spp, cornea=args.cornea,
+                                 seed=args.seed, grid=(cols, rows), progress=update)
+    finally:
+        bar.close()
+    print(f"calibration frames {out}: {cols * rows} single-pulse frames of the eye fixating the "
+          f"{cols}x{rows} pattern (calibrate with: scet calibrate {out} --scene "
+          f"{args.scene or 'paper_sim'} --out calibration.json)")
+    return 0
+
+
 def cmd_render(args) -> int:
     from estimator.scene import load_scene
 
     from .dataset import render_dataset
 
     setup = load_scene(args.scene)
+    if args.calibration is not None:
+        if args.frames is not None or args.raw:
+            raise ValueError("--calibration renders one frame per target: leave out --frames "
+                             "and --raw")
+        return cmd_render_calibration(args, setup)
+    if args.frames is None:
+        raise ValueError("--frames is required (or --calibration PATTERN for calibration frames)")
     bar, update = _progress_bar(args.frames, "frame", f"render {setup.name}")
     try:
         summary = render_dataset(setup, args.out, frames=args.frames, spp=args.spp,
@@ -181,7 +213,28 @@ def cmd_calibrate(args) -> int:
     setup = load_scene(args.scene)
     cal = calibrate_from_folder(args.dir, setup)
     path = save_calibration(cal, args.out)
-    print(f"calibration written to {path}: r_c = {cal.cornea_radius_m * 1e3:.3f} mm")
+    q = cal.quality
+    print(f"calibration written to {path}: r_c = {cal.cornea_radius_m * 1e3:.3f} mm, "
+          f"r_co = {cal.orbit_radius_m * 1e3:.3f} mm, glint RMS {q.get('rms_px', float('nan')):.3f} px, "
+          f"{q.get('frames_used', '?')} of {q.get('frames_total', '?')} frames")
+    for w in cal.warnings:
+        print(f"warning: {w}", file=sys.stderr)
+    if cal.warnings:
+        print(f"scet calibrate: {len(cal.warnings)} plausibility check(s) failed; they are "
+              f"recorded in {path} (quality.warnings)", file=sys.stderr)
+    return 0
+
+
+def cmd_score(args) -> int:
+    from .validate import reasons_table, score_samples, score_table, write_score_report
+
+    score = score_samples(args.samples, args.dataset)
+    print(score_table(score))
+    print()
+    print(reasons_table(score))
+    if args.markdown:
+        path = write_score_report(score, args.markdown, plots=not args.no_plots)
+        print(f"report written to {path}")
     return 0
 
 
@@ -314,7 +367,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("render", help="render a labelled dataset of banded frames with Mitsuba 3")
     p.add_argument("scene", nargs="?", help=scene_help)
-    p.add_argument("--frames", type=int, required=True, help="number of frames")
+    p.add_argument("--frames", type=int, help="number of frames (banded datasets)")
+    p.add_argument("--calibration", metavar="PATTERN",
+                   help="render single-pulse calibration frames instead: one per target of a "
+                        "COLSxROWS fixation pattern (3x3, 5x5, 6x6) on the scene's screen")
     p.add_argument("--out", type=Path, required=True, help="dataset folder (resumed if interrupted)")
     p.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
     p.add_argument("--trajectory", choices=("fixations", "saccades", "grid"), default="fixations")
@@ -349,6 +405,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--method", choices=("polynomial", "geometric"), default="polynomial")
     p.add_argument("--out", type=Path, required=True, help="samples CSV")
     p.set_defaults(func=cmd_track)
+
+    p = sub.add_parser("score", help="score samples CSVs against a rendered dataset's ground truth")
+    p.add_argument("samples", type=Path, nargs="+", help="samples CSV files (one per method)")
+    p.add_argument("dataset", type=Path, help="the dataset folder the samples were tracked from")
+    p.add_argument("--markdown", type=Path, help="write the tables (and a plot) to this .md file")
+    p.add_argument("--no-plots", action="store_true", help="no figure beside --markdown")
+    p.set_defaults(func=cmd_score)
 
     p = sub.add_parser("validate", help="the main job: render, calibrate, track and compare with "
                                         "ground truth and with the feature-level simulation")

@@ -2,9 +2,17 @@
 radius, the gaze mappings, and the calibration file.
 
 Modules: ``lighting``, ``orbit``, ``mapping`` (Eq. (1) and the second-order polynomials),
-``result`` (:class:`Calibration`, versioned JSON).
+``result`` (:class:`Calibration`, versioned JSON), ``checks`` (is a calibration plausible).
 """
 
+from .checks import (
+    AT_BOUND_RTOL,
+    MAX_RMS_PX,
+    MIN_FRAMES_SHARE,
+    POSE_SHARE,
+    RADIUS_SD_RANGE,
+    calibration_warnings,
+)
 from .lighting import (
     CORNEA_RADIUS_BOUNDS_M,
     CORNEA_RADIUS_INIT_M,
@@ -23,9 +31,11 @@ from .orbit import ORBIT_RADIUS_BOUNDS_M, OrbitFit, orbit_law_of_sines, orbit_sp
 from .result import Calibration
 
 __all__ = [
-    "CORNEA_RADIUS_INIT_M", "CORNEA_RADIUS_SD_M", "CORNEA_RADIUS_BOUNDS_M", "POSE_BOUND_M",
-    "POSE_BOUND_RAD", "pose_correction", "corrected_lights", "LightingFit",
-    "calibrate_lighting_per_frame", "calibrate_lighting_joint", "calibrate_joint",
-    "MAPPING_TERMS", "RANK_RTOL", "GazeMapping", "fit_gaze_mapping", "distance_reading",
-    "ORBIT_RADIUS_BOUNDS_M", "OrbitFit", "orbit_law_of_sines", "orbit_sphere_fit", "Calibration"
+    "RADIUS_SD_RANGE", "POSE_SHARE", "MAX_RMS_PX", "MIN_FRAMES_SHARE", "AT_BOUND_RTOL",
+    "calibration_warnings", "CORNEA_RADIUS_INIT_M", "CORNEA_RADIUS_SD_M",
+    "CORNEA_RADIUS_BOUNDS_M", "POSE_BOUND_M", "POSE_BOUND_RAD", "pose_correction",
+    "corrected_lights", "LightingFit", "calibrate_lighting_per_frame",
+    "calibrate_lighting_joint", "calibrate_joint", "MAPPING_TERMS", "RANK_RTOL", "GazeMapping",
+    "fit_gaze_mapping", "distance_reading", "ORBIT_RADIUS_BOUNDS_M", "OrbitFit",
+    "orbit_law_of_sines", "orbit_sphere_fit", "Calibration"
 ]

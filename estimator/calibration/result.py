@@ -26,7 +26,7 @@ Everything ends up in a :class:`Calibration`, written as versioned JSON.
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -57,6 +57,10 @@ class Calibration:
         Named gaze mappings, e.g. ``{"eq1_9": ..., "eq1_25": ..., "quadratic_25": ...}``.
     methods : dict[str, str]
         How each part was obtained (free text, e.g. ``{"lighting": "joint"}``).
+    quality : dict
+        How well it fitted, JSON-ready: ``rms_px`` (glint residual), ``frames_used``,
+        ``frames_total`` and ``warnings`` (the failed plausibility checks of
+        :func:`estimator.calibration.checks.calibration_warnings`; empty when plausible).
     """
 
     lighting_correction: RigidPose = field(default_factory=RigidPose)
@@ -65,6 +69,7 @@ class Calibration:
     orbit_radius_m: float = float("nan")
     mappings: dict = field(default_factory=dict)
     methods: dict = field(default_factory=dict)
+    quality: dict = field(default_factory=dict)
 
     def __post_init__(self):
         ce = np.asarray(self.eye_center_m, dtype=np.float64).reshape(3).copy()
@@ -74,6 +79,9 @@ class Calibration:
         object.__setattr__(self, "orbit_radius_m", float(self.orbit_radius_m))
         object.__setattr__(self, "mappings", dict(self.mappings))
         object.__setattr__(self, "methods", {str(k): str(v) for k, v in self.methods.items()})
+        if not isinstance(self.quality, dict):
+            raise ValueError(f"Calibration.quality must be a dict, got {type(self.quality).__name__}")
+        object.__setattr__(self, "quality", dict(self.quality))
         for name, m in self.mappings.items():
             if not isinstance(m, GazeMapping):
                 raise ValueError(f"Calibration.mappings[{name!r}] must be a GazeMapping, got {type(m).__name__}")
@@ -103,9 +111,16 @@ class Calibration:
         """(n, 3) calibrated positions of the nominal lights."""
         return corrected_lights(self.lighting_correction, nominal_lights_m)
 
+    @property
+    def warnings(self) -> list[str]:
+        """The failed plausibility checks recorded at calibration (empty: plausible)."""
+        return list(self.quality.get("warnings", []))
+
     def with_mappings(self, **mappings: GazeMapping) -> "Calibration":
-        return Calibration(self.lighting_correction, self.cornea_radius_m, self.eye_center_m,
-                           self.orbit_radius_m, {**self.mappings, **mappings}, self.methods)
+        return replace(self, mappings={**self.mappings, **mappings})
+
+    def with_quality(self, **quality) -> "Calibration":
+        return replace(self, quality={**self.quality, **quality})
 
     def to_dict(self) -> dict:
         finite = self.has_orbit
@@ -118,6 +133,7 @@ class Calibration:
             "orbit_radius_m": self.orbit_radius_m if finite else None,
             "mappings": {k: v.to_dict() for k, v in self.mappings.items()},
             "methods": dict(self.methods),
+            "quality": dict(self.quality),
         }
 
     @classmethod
@@ -129,7 +145,7 @@ class Calibration:
             return cls(RigidPose(lc["rotation"], lc["translation_m"]), data["cornea_radius_m"],
                        np.full(3, np.nan) if ce is None else ce, float("nan") if r_co is None else r_co,
                        {k: GazeMapping.from_dict(v) for k, v in data["mappings"].items()},
-                       data.get("methods", {}))
+                       data.get("methods", {}), data.get("quality", {}))
         except (KeyError, TypeError) as exc:
             raise ValueError(f"{CALIBRATION_FORMAT}: malformed document ({exc!r})") from None
 

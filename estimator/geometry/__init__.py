@@ -9,7 +9,7 @@ Modules: ``rigid`` (poses, rotations, point checks), ``camera`` (:class:`Camera`
 """
 
 from .camera import Camera
-from .jacobians import glint_jacobians
+from .jacobians import glint_jacobians, jacobian_terms, radius_rows
 from .reflection import project_glints, reflect_pixel_rays, reflection_points
 from .rigid import (
     RigidPose,
@@ -23,7 +23,8 @@ from .rigid import (
 )
 
 __all__ = [
-    "Camera", "glint_jacobians", "reflection_points", "project_glints", "reflect_pixel_rays",
-    "as_points", "normalize", "rotation_matrix", "rotation_from_vector", "rotation_to_vector",
-    "look_at_rotation", "RigidPose", "rotations_from_vectors"
+    "Camera", "glint_jacobians", "radius_rows", "jacobian_terms", "reflection_points",
+    "project_glints", "reflect_pixel_rays", "as_points", "normalize", "rotation_matrix",
+    "rotation_from_vector", "rotation_to_vector", "look_at_rotation", "RigidPose",
+    "rotations_from_vectors"
 ]

@@ -1,5 +1,8 @@
 """``scet validate``: render, calibrate, track and compare with the ground truth and
-the feature-level simulator. ``run`` (the run), ``report`` (``validation.md``).
+the feature-level simulator; ``scet score``: samples against a dataset's labels.
+
+Modules: ``config`` (modes, rows, results), ``run`` (the run), ``report`` (``validation.md``),
+``score`` (the metrics per method, band position and reason code).
 """
 
 from .config import (
@@ -13,9 +16,21 @@ from .config import (
 )
 from .report import prior_table_markdown, table_markdown
 from .run import geometric_from, run_validation
+from .score import (
+    POSITIONS,
+    Score,
+    ScoreRow,
+    band_position,
+    reasons_table,
+    score_samples,
+    score_table,
+    true_gaze_points,
+    write_score_report,
+)
 
 __all__ = [
     "IDENTITY_RADIUS_PX", "ValidationConfig", "QUICK", "FULL", "ValidationRow",
     "ValidationResult", "SIM_REPEATS", "table_markdown", "prior_table_markdown",
-    "geometric_from", "run_validation"
+    "geometric_from", "run_validation", "POSITIONS", "true_gaze_points", "band_position",
+    "ScoreRow", "Score", "score_samples", "score_table", "reasons_table", "write_score_report"
 ]

@@ -36,7 +36,6 @@ import numpy as np
 
 from estimator.banding import scaled_setup, strobe_setup
 from estimator.calibration import Calibration
-from estimator.eye import gaze_direction
 from estimator.folders import (
     calibrate_from_folder,
     save_calibration,
@@ -60,16 +59,9 @@ from .config import (
     ValidationRow,
 )
 from .report import _write_report
+from .score import true_gaze_points
 
 # --------------------------------------------------------------------------- comparison
-
-
-def _true_gaze_points(setup: Setup, labels) -> np.ndarray:
-    yaw = np.array([lb.yaw_rad for lb in labels])
-    pitch = np.array([lb.pitch_rad for lb in labels])
-    p, _ = screen_intersection(setup.eye.rotation_center_m, gaze_direction(yaw, pitch),
-                               setup.screen.z_m)
-    return p
 
 
 def _identities(samples, labels_by_key, radius_px: float):
@@ -255,7 +247,7 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
             timings["track"] += time.perf_counter() - t
             tracked[(ppf, method)] = samples
             keyed = [by_key[(s.frame_index, s.strobe_index)] for s in samples]
-            truth = _true_gaze_points(sset, keyed)
+            truth = true_gaze_points(sset, keyed)
             est = np.array([[*s.screen_xy_m, sset.screen.z_m] for s in samples])
             err = angular_error_deg(est, truth, sset.eye.rotation_center_m)
             c, n, _ = _identities(samples, by_key, radius)
@@ -282,7 +274,7 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
             samples = tracked[(ppf, method)]
             keyed = [by_key[(s.frame_index, s.strobe_index)] for s in samples]
             err = _simulate(sset, calibration, method, mapping, samples,
-                            _true_gaze_points(sset, keyed), noise_px, seed)
+                            true_gaze_points(sset, keyed), noise_px, seed)
             errors[("simulated", ppf, method)] = err
             rows.append(_row("simulated", ppf, method, err, 1.0))
         timings["simulate"] += time.perf_counter() - t
