@@ -160,7 +160,7 @@ def coverage_bound(setup: Setup, model: BandModel, poses: DesignPoses, candidate
     axis = gaze_direction(poses.yaw_rad, poses.pitch_rad)
     g, vis, pts = project_glints(setup.camera, center, eye.cornea_radius_m, candidates_m,
                                  cornea_axis=axis, cap_cos_min=eye.cap_cos_min, return_points=True)
-    vis &= glint_unblocked(setup, shells, pts, candidates_m)
+    vis = vis & glint_unblocked(setup, shells, pts, candidates_m)
     bands = glint_bands(model, g, vis)
     counts = np.zeros((poses.count, model.count), dtype=np.int64)
     for p in range(poses.count):
