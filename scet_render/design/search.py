@@ -193,25 +193,32 @@ def _greedy_free(setup, model, poses, counts, current_m, candidates_m, free, nee
     b_c = glint_bands(model, g_c, u_c)  # (P, C)
     design = model.design
     lights = np.asarray(current_m, float)
+    g_l, u_l = layout_glints(setup, lights, poses, shells)
+    gl = np.where(u_l[..., None], g_l, np.nan)
+    # Distance of every candidate's glint to the layout's nearest glint, per pose (P, C),
+    # over blocks of candidates, then kept up to date light by light.
+    near = np.full(b_c.shape, np.inf)
+    for c0 in range(0, candidates_m.shape[0], 64):
+        d = np.linalg.norm(g_c[:, c0:c0 + 64, None, :] - gl[:, None, :, :], axis=-1)
+        near[:, c0:c0 + 64] = np.nanmin(np.where(np.isnan(d), np.inf, d), axis=2)
+    P = counts.shape[0]
+    rows = np.arange(P)[:, None]
+    band = np.clip(b_c, 0, model.count - 1)
     for _ in range(free):
-        g_l, u_l = layout_glints(setup, lights, poses, shells)
-        gl = np.where(u_l[..., None], g_l, np.nan)
-        # Distance of every candidate's glint to the layout's nearest glint, per pose.
-        d = np.linalg.norm(g_c[:, :, None, :] - gl[:, None, :, :], axis=-1)
-        near = np.nanmin(np.where(np.isnan(d), np.inf, d), axis=2)
         ok = (b_c >= 0) & (near >= MIN_SEPARATION_PX)
-        P = counts.shape[0]
-        rows = np.arange(P)[:, None]
-        cb = counts[rows, np.clip(b_c, 0, model.count - 1)]
-        gain = ok & design[np.clip(b_c, 0, model.count - 1)] & (cb < need)
-        # Reaching the bar is worth more than a step toward it.
+        cb = counts[rows, band]
+        gain = ok & design[band] & (cb < need)
+        # Reaching the bar is worth more than a step toward it; blending costs.
         score = (gain * (1.0 + 4.0 * (cb == need - 1))).sum(axis=0)
-        score -= ((b_c >= 0) & (near < MIN_SEPARATION_PX)).sum(axis=0) * 0.5
+        score = score - ((b_c >= 0) & (near < MIN_SEPARATION_PX)).sum(axis=0) * 0.5
         best = int(np.argmax(score))
         if score[best] <= 0:
             break
         chosen.append(candidates_m[best])
         lights = np.concatenate([lights, candidates_m[best][None]])
+        new = np.where(u_c[:, best, None], g_c[:, best], np.nan)  # (P, 2)
+        d = np.linalg.norm(g_c - new[:, None, :], axis=-1)
+        near = np.minimum(near, np.where(np.isnan(d), np.inf, d))
         g_l, u_l = layout_glints(setup, lights, poses, shells)
         counts = band_counts(model, g_l, u_l)
     return np.array(chosen).reshape(-1, 3), counts
