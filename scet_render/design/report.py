@@ -19,7 +19,7 @@ from .search import DesignResult
 _HEADER = re.compile(r"^\s*\[")
 
 
-def _without_lights(text: str) -> str:
+def scene_without_lights(text: str) -> str:
     """The scene text without its ``[[lights]]`` tables (and their sub-tables), and without
     the comment block right above each (it describes the old layout)."""
     out: list[str] = []
@@ -63,7 +63,7 @@ def designed_scene_text(source_setup: Setup, result: DesignResult, name: str) ->
     """The scene file of the designed layout: the source scene's text with its lights
     replaced (checked by loading it)."""
     src = Path(source_setup.source)
-    text = _without_lights(src.read_text(encoding="utf-8"))
+    text = scene_without_lights(src.read_text(encoding="utf-8"))
     text = _set_top(text, "name", name)
     text = _set_top(text, "description", f"{source_setup.name} with a layout from scet "
                                           f"design-lights: {result.lights} lights")
@@ -238,4 +238,4 @@ the median glint count.
 """
 
 
-__all__ = ["designed_scene_text", "write_design", "report_markdown", "score_lines"]
+__all__ = ["scene_without_lights", "designed_scene_text", "write_design", "report_markdown", "score_lines"]

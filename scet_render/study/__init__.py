@@ -6,8 +6,9 @@
 
 from .events import (DETECTORS, EventScores, Saccades, Series, detect_saccades, score_saccades,
                      true_saccades, uniform_series, velocity)
-from .events_run import FULL, QUICK, Condition, EventConfig, run_event_study, summary_row
+from .events_report import RATE_60, Condition, summary_row
+from .events_run import FULL, QUICK, EventConfig, run_event_study
 
 __all__ = ["DETECTORS", "EventScores", "Saccades", "Series", "detect_saccades", "score_saccades",
            "true_saccades", "uniform_series", "velocity", "FULL", "QUICK", "Condition",
-           "EventConfig", "run_event_study", "summary_row"]
+           "EventConfig", "run_event_study", "summary_row", "RATE_60"]

@@ -4,14 +4,53 @@ from __future__ import annotations
 
 import io
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from estimator.formats import atomic_write
 
-from .events import (IDT_DISPERSION_DEG, IVT_THRESHOLD_DEG_S, MAX_GAP_S, MIN_FIXATION_S,
+from .events import (EventScores, IDT_DISPERSION_DEG, IVT_THRESHOLD_DEG_S, MAX_GAP_S, MIN_FIXATION_S,
                      VELOCITY_WINDOW_S, detect_saccades, velocity)
+
+
+#: The label of the 60 Hz condition (one sample per frame).
+RATE_60 = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Condition:
+    """One row of the table: lighting, pulses per frame (0: the 60 Hz tracker), detector."""
+
+    lighting: str
+    pulses_per_frame: int
+    detector: str
+    samples_per_s: float
+    valid_share: float
+    scores: EventScores
+
+
+def summary_row(c: Condition) -> dict:
+    """Numbers of one condition (means of absolute errors, and signed means)."""
+    s = c.scores
+
+    def mae(a):
+        return float(np.mean(np.abs(a))) if a.size else math.nan
+
+    def bias(a):
+        return float(np.mean(a)) if a.size else math.nan
+
+    return {"lighting": c.lighting, "rate": "60 Hz" if c.pulses_per_frame == RATE_60 else
+            f"{c.pulses_per_frame} pulses/frame", "detector": c.detector.upper().replace("I", "I-", 1),
+            "samples_per_s": c.samples_per_s, "valid": c.valid_share, "n_true": s.n_true,
+            "detection_rate": s.detection_rate, "false": s.false_detections,
+            "onset_ms": mae(s.onset_ms), "onset_bias_ms": bias(s.onset_ms),
+            "offset_ms": mae(s.offset_ms), "offset_bias_ms": bias(s.offset_ms),
+            "duration_ms": mae(s.duration_ms), "duration_bias_ms": bias(s.duration_ms),
+            "peak_velocity_deg_s": mae(s.peak_velocity_deg_s),
+            "peak_velocity_bias_deg_s": bias(s.peak_velocity_deg_s),
+            "amplitude_deg": mae(s.amplitude_deg), "amplitude_bias_deg": bias(s.amplitude_deg)}
 
 
 def _fmt(v, spec=".1f", pct=False):
@@ -21,8 +60,6 @@ def _fmt(v, spec=".1f", pct=False):
 
 
 def conditions_table(conditions) -> str:
-    from .events_run import summary_row
-
     head = ("| lighting | rate | detector | valid samples/s | saccades | detected | false | "
             "onset err ms (bias) | offset err ms (bias) | duration err ms (bias) | "
             "peak velocity err deg/s (bias) | amplitude err deg (bias) |\n"
@@ -43,8 +80,6 @@ def conditions_table(conditions) -> str:
 
 def buys_table(conditions) -> str:
     """The 16-pulse (most bands) condition against 60 Hz, per lighting and detector."""
-    from .events_run import RATE_60, summary_row
-
     rows = {(c.lighting, c.pulses_per_frame, c.detector): summary_row(c) for c in conditions}
     top = max(c.pulses_per_frame for c in conditions)
     keys = (("samples_per_s", "valid samples/s", ".0f"), ("detection_rate", "saccades detected", "%"),
@@ -77,8 +112,6 @@ def _plots(traces, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from .events_run import RATE_60
 
     lighting = next(iter(dict.fromkeys(k[0] for k in traces)))
     top = max(k[1] for k in traces if k[0] == lighting)
@@ -122,8 +155,6 @@ def _error_plot(conditions, path: Path) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
-    from .events_run import summary_row
 
     rows = [summary_row(c) for c in conditions]
     keys = (("onset_ms", "onset error (ms)"), ("duration_ms", "duration error (ms)"),

@@ -17,7 +17,6 @@ Quick mode renders like ``scet validate --quick`` (320 x 240, 4 spp, conductor c
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,8 +27,8 @@ import numpy as np
 from estimator.eye import fick_angles
 from estimator.scene import load_scene
 
-from .events import (DETECTORS, EventScores, detect_saccades, score_saccades, true_saccades,
-                     uniform_series)
+from .events import DETECTORS, detect_saccades, score_saccades, true_saccades, uniform_series
+from .events_report import RATE_60, Condition, write_events_report
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,22 +42,6 @@ class EventConfig:
 
 QUICK = EventConfig(scale=2, spp=4, cornea="conductor", frames=120)
 FULL = EventConfig(scale=1, spp=16, cornea="dielectric", frames=600)
-#: The label of the 60 Hz condition (one sample per frame).
-RATE_60 = 0
-
-
-@dataclass(frozen=True, slots=True)
-class Condition:
-    """One row of the table: lighting, pulses per frame (0: the 60 Hz tracker), detector."""
-
-    lighting: str
-    pulses_per_frame: int
-    detector: str
-    samples_per_s: float
-    valid_share: float
-    scores: EventScores
-
-
 def _gaze_deg(setup, rows) -> tuple[np.ndarray, np.ndarray]:
     """Sample times (s) and Fick angles (deg) of the gaze points of ``samples.csv`` rows."""
     t = np.array([float(r["time_s"]) for r in rows])
@@ -126,29 +109,5 @@ def run_event_study(lightings: dict, *, quick: bool, out_dir, report_dir, seed: 
                                             score_saccades(found, truth, period)))
             traces[(label, p)] = (series, traj)
             timings["events"] += time.perf_counter() - t
-    from .events_report import write_events_report
-
     path = write_events_report(Path(report_dir), conditions, traces, cfg, lightings, timings)
     return conditions, path
-
-
-def summary_row(c: Condition) -> dict:
-    """Numbers of one condition (means of absolute errors, and signed means)."""
-    s = c.scores
-
-    def mae(a):
-        return float(np.mean(np.abs(a))) if a.size else math.nan
-
-    def bias(a):
-        return float(np.mean(a)) if a.size else math.nan
-
-    return {"lighting": c.lighting, "rate": "60 Hz" if c.pulses_per_frame == RATE_60 else
-            f"{c.pulses_per_frame} pulses/frame", "detector": c.detector.upper().replace("I", "I-", 1),
-            "samples_per_s": c.samples_per_s, "valid": c.valid_share, "n_true": s.n_true,
-            "detection_rate": s.detection_rate, "false": s.false_detections,
-            "onset_ms": mae(s.onset_ms), "onset_bias_ms": bias(s.onset_ms),
-            "offset_ms": mae(s.offset_ms), "offset_bias_ms": bias(s.offset_ms),
-            "duration_ms": mae(s.duration_ms), "duration_bias_ms": bias(s.duration_ms),
-            "peak_velocity_deg_s": mae(s.peak_velocity_deg_s),
-            "peak_velocity_bias_deg_s": bias(s.peak_velocity_deg_s),
-            "amplitude_deg": mae(s.amplitude_deg), "amplitude_bias_deg": bias(s.amplitude_deg)}

@@ -1,6 +1,8 @@
 """The lighting designer: its objective on a hand-countable case, the region, the scene it
 writes, bad budgets and regions, and determinism for a seed."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -60,7 +62,7 @@ def test_arc_scene_table_round_trip(paper):
               span_deg=120.0, rho_m=0.03, count=9)
     ring = Arc(azimuth_deg=0.0, elevation_deg=0.0, beta_deg=50.0, phi0_deg=0.0, span_deg=360.0,
                rho_m=0.03, count=12)
-    text = Path_text(paper) + arc.scene_table(paper.eye.rotation_center_m, "a", 0.4) \
+    text = _scene_text_without_lights(paper) + arc.scene_table(paper.eye.rotation_center_m, "a", 0.4) \
         + ring.scene_table(paper.eye.rotation_center_m, "r", 0.4)
     loaded = parse_scene(text, "<test>")
     c = paper.eye.rotation_center_m
@@ -71,11 +73,10 @@ def test_arc_scene_table_round_trip(paper):
     assert np.linalg.norm(p[0] - p[-1]) > 0.5 * ring.spacing_m
 
 
-def Path_text(setup):
-    from scet_render.design.report import _without_lights
+def _scene_text_without_lights(setup):
+    from scet_render.design.report import scene_without_lights
 
-    from pathlib import Path
-    return _without_lights(Path(setup.source).read_text())
+    return scene_without_lights(Path(setup.source).read_text())
 
 
 @pytest.mark.parametrize("kwargs, word", [({"lights": 3}, "lights"),
