@@ -437,6 +437,10 @@ def build_parser() -> argparse.ArgumentParser:
     from scet_hardware.cli import register as register_hardware
 
     register_hardware(sub)   # scet strobe, scet capture, scet hardware
+
+    from scet_render.cli_studies import add_parsers
+
+    add_parsers(sub)      # scet design-lights, scet study events
     return ap
 
 

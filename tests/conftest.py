@@ -29,9 +29,10 @@ if os.environ.get("SCET_REQUIRE_ALL") == "1":
     settings.load_profile("ci")
 
 
-#: Modules of the extras in pyproject.toml ('render', 'fast', 'test', 'hardware') and of
-#: matplotlib.
-EXTRAS = ("mitsuba", "drjit", "OpenEXR", "trimesh", "numba", "hypothesis", "matplotlib", "serial")
+#: Modules of the extras in pyproject.toml ('render', 'fast', 'test', 'hardware', 'events')
+#: and of matplotlib.
+EXTRAS = ("mitsuba", "drjit", "OpenEXR", "trimesh", "numba", "hypothesis", "matplotlib", "serial",
+          "pymovements")
 #: Modules of the 'render' and 'fast' extras, which the base install must do without.
 BASE_EXCLUDES = ("mitsuba", "drjit", "OpenEXR", "trimesh", "numba")
 
