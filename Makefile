@@ -68,6 +68,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_glints.py
 	$(PY) benchmarks/bench_render.py
 	$(PY) benchmarks/bench_capture.py
+	$(PY) benchmarks/bench_cluster.py
 
 clean:
 	rm -rf $(VENV) $(BASE_VENV) build *.egg-info .pytest_cache .hypothesis hardware/firmware/build

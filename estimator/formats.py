@@ -5,7 +5,8 @@ Every file SCET writes is versioned (a ``format`` name and an integer ``version`
 header, or its first line) and checked on load, and every file is written atomically: to a
 temporary name beside the target, flushed to disk, then moved onto the target with
 :func:`os.replace`, so that a reader sees either the old file or the whole new one. The
-temporary name is unique per writer (``<name>.<pid>-<n>.partial``): two processes writing one
+temporary name is unique per writer (``<name>.<token><pid>-<thread>-<n>.partial``, the token
+random per process, for writers on several machines): two processes writing one
 file never write into each other's temporary, and the last rename wins with a whole file. A
 failed write removes its temporary. Folders that are written into can be swept of the
 temporaries of killed runs with :func:`remove_partials`.
@@ -82,13 +83,15 @@ def read_json(path, error: type[Exception] = ValueError):
 
 _counter = itertools.count()
 _counter_lock = threading.Lock()
+#: Per process: temporaries stay unique across machines writing into one shared folder.
+_TOKEN = os.urandom(3).hex()
 
 
 def _partial_name(path: Path) -> Path:
     with _counter_lock:
         n = next(_counter)
-    return path.with_name(f"{path.name}.{os.getpid()}-{threading.get_ident() % 100000}-{n}"
-                          f"{PARTIAL_SUFFIX}")
+    return path.with_name(f"{path.name}.{_TOKEN}{os.getpid()}-{threading.get_ident() % 100000}"
+                          f"-{n}{PARTIAL_SUFFIX}")
 
 
 @contextmanager

@@ -7,20 +7,13 @@ scene file, a bad target spec) print one line naming the problem and exit with s
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from pathlib import Path
 
 import numpy as np
 
-
-def _print_table(rows: list[list[str]], header: list[str], out=None) -> None:
-    out = sys.stdout if out is None else out
-    widths = [max(len(str(c)) for c in col) for col in zip(header, *rows)]
-    fmt = "  ".join(f"{{:>{w}}}" for w in widths)
-    print(fmt.format(*header), file=out)
-    for row in rows:
-        print(fmt.format(*row), file=out)
+from .cli_data import add_dataset_parsers, add_render_parser
+from .cli_progress import StageBars, print_table, progress_bar
 
 
 def _describe(setup) -> str:
@@ -69,7 +62,7 @@ def cmd_bands(args) -> int:
     print(f"band layout of frame {args.frame}, scene {setup.name}: Eq. (7) band height "
           f"{band_height(sen, st.pulse_s):.2f} rows, Eq. (5) partial lines {partial_lines(sen, st.pulse_s):.2f}, "
           f"gap between bands {band_gap_rows(sen, st):.2f} rows (negative: overlap)")
-    _print_table(rows, ["strobe", "time_us", "in_frame_us", "k_j", "first_row", "last_row",
+    print_table(rows, ["strobe", "time_us", "in_frame_us", "k_j", "first_row", "last_row",
                         "partial_rows", "visible", "visible_share"])
     n_vis = sum(r["visible"] for r in table)
     share = sum(r["fraction_visible"] for r in table)
@@ -98,98 +91,6 @@ def cmd_simulate(args) -> int:
     print(f"{stats['targets']} targets x {stats['lights']} lights, e_f = {args.noise:g} px "
           f"({args.noise_model}), seed {args.seed}: visible glints per target min {stats['visible_min']}, "
           f"mean {stats['visible_mean']:.2f}, max {stats['visible_max']}; written to {path}")
-    return 0
-
-
-def _progress_bar(total: int, unit: str, desc: str):
-    """A tqdm bar on stderr with time left, as a ``progress(done, total)`` callback."""
-    from tqdm import tqdm
-
-    bar = tqdm(total=total, unit=unit, desc=desc, dynamic_ncols=True, disable=None)
-
-    def update(done: int, total_now: int, *_):
-        bar.total = total_now
-        bar.n = done
-        bar.refresh()
-
-    return bar, update
-
-
-class _StageBars:
-    """Progress bars for a job made of named stages: one bar per stage, the previous closed when
-    the next starts. ``update(stage, done, total, label="")`` is the job's progress callback."""
-
-    def __init__(self):
-        self.name, self.bar, self.set = None, None, None
-
-    def update(self, stage, done, total, label=""):
-        if stage != self.name:
-            self.close()
-            self.name = stage
-            self.bar, self.set = _progress_bar(total, "step", stage)
-        if label:
-            self.bar.set_postfix_str(str(label)[:40], refresh=False)
-        self.set(done, total)
-
-    def close(self):
-        if self.bar is not None:
-            self.bar.close()
-            self.bar = None
-
-
-def _grid_pattern(text: str) -> tuple[int, int]:
-    m = re.fullmatch(r"(\d+)x(\d+)", text or "")
-    if not m or not (2 <= int(m.group(1)) <= 50 and 2 <= int(m.group(2)) <= 50):
-        raise ValueError(f"--calibration: expected a pattern COLSxROWS such as 3x3, 5x5 or 6x6 "
-                         f"(2-50 each), got {text!r}")
-    return int(m.group(1)), int(m.group(2))
-
-
-def cmd_render_calibration(args, setup) -> int:
-    from .dataset import render_calibration
-
-    cols, rows = _grid_pattern(args.calibration)
-    bar, update = _progress_bar(cols * rows, "frame", f"render calibration {setup.name}")
-    try:
-        out = render_calibration(setup, args.out, spp=args.spp, cornea=args.cornea,
-                                 seed=args.seed, grid=(cols, rows), progress=update)
-    finally:
-        bar.close()
-    print(f"calibration frames {out}: {cols * rows} single-pulse frames of the eye fixating the "
-          f"{cols}x{rows} pattern (calibrate with: scet calibrate {out} --scene "
-          f"{args.scene or 'paper_sim'} --out calibration.json)")
-    return 0
-
-
-def cmd_render(args) -> int:
-    from estimator.scene import load_scene
-
-    from .dataset import render_dataset
-
-    setup = load_scene(args.scene)
-    if args.calibration is not None:
-        if args.frames is not None or args.raw:
-            raise ValueError("--calibration renders one frame per target: leave out --frames "
-                             "and --raw")
-        return cmd_render_calibration(args, setup)
-    if args.frames is None:
-        raise ValueError("--frames is required (or --calibration PATTERN for calibration frames)")
-    bar, update = _progress_bar(args.frames, "frame", f"render {setup.name}")
-    try:
-        summary = render_dataset(setup, args.out, frames=args.frames, spp=args.spp,
-                                 trajectory=args.trajectory, seed=args.seed, variant=args.variant,
-                                 cornea=args.cornea, progress=update)
-    finally:
-        bar.close()
-    print(f"dataset {summary.path}: {len(summary.frames_rendered)} frames rendered, "
-          f"{len(summary.frames_skipped)} already complete")
-    if args.raw:
-        from scet_hardware.capture.replay import replay_dataset
-
-        # The same folder becomes a capture folder too: frames/NNNNNN.raw as the sensor reads
-        # them out, read back through the one capture reader by calibrate and track.
-        replay_dataset(summary.path, summary.path, scene=args.scene, raw_format=args.raw)
-        print(f"raw frames ({args.raw}, Bayer mosaic) and capture.json written to {summary.path}")
     return 0
 
 
@@ -225,26 +126,13 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
-def cmd_score(args) -> int:
-    from .validate import reasons_table, score_samples, score_table, write_score_report
-
-    score = score_samples(args.samples, args.dataset)
-    print(score_table(score))
-    print()
-    print(reasons_table(score))
-    if args.markdown:
-        path = write_score_report(score, args.markdown, plots=not args.no_plots)
-        print(f"report written to {path}")
-    return 0
-
-
 def cmd_track(args) -> int:
     from estimator.folders import load_calibration, track_folder
     from estimator.scene import load_scene
 
     setup = load_scene(args.scene)
     cal = load_calibration(args.calibration)
-    bar, update = _progress_bar(0, "frame", "track")
+    bar, update = progress_bar(0, "frame", "track")
     try:
         summary = track_folder(args.dir, setup, cal, args.out, method=args.method, progress=update)
     finally:
@@ -257,7 +145,7 @@ def cmd_track(args) -> int:
 def cmd_validate(args) -> int:
     from .validate import run_validation, table_markdown
 
-    bars = _StageBars()
+    bars = StageBars()
     try:
         result = run_validation(args.scene, quick=args.quick, out_dir=args.out, seed=args.seed,
                                 progress=bars.update, report_dir=args.report_dir)
@@ -274,7 +162,7 @@ def cmd_validate(args) -> int:
 def cmd_reproduce(args) -> int:
     from .reproduce import run_reproduction
 
-    bars = _StageBars()
+    bars = StageBars()
     try:
         path = run_reproduction(args.out, quick=args.quick, seed=args.seed,
                                 progress=lambda done, total, label="": bars.update("reproduce", done, total, label))
@@ -324,7 +212,7 @@ def cmd_demo(args) -> int:
           f"{stats['spread_v_px_mean']:.1f} px down (mean)")
     print("  glints per target inside each visible band of frame 0:")
     table = band_glint_counts(setup, obs)
-    _print_table([[r["strobe"], f"{r['rows'][0]}-{r['rows'][1]}", f"{r['glints_mean']:.2f}", r["glints_min"],
+    print_table([[r["strobe"], f"{r['rows'][0]}-{r['rows'][1]}", f"{r['glints_mean']:.2f}", r["glints_min"],
                    f"{100 * r['share_none']:.1f}", f"{100 * r['share_ge3']:.1f}"] for r in table],
                  ["strobe", "rows", "mean", "min", "% none", "% >= 3"])
     path = out / "glints.npz"
@@ -365,23 +253,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="output file, .npz or .csv")
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("render", help="render a labelled dataset of banded frames with Mitsuba 3")
-    p.add_argument("scene", nargs="?", help=scene_help)
-    p.add_argument("--frames", type=int, help="number of frames (banded datasets)")
-    p.add_argument("--calibration", metavar="PATTERN",
-                   help="render single-pulse calibration frames instead: one per target of a "
-                        "COLSxROWS fixation pattern (3x3, 5x5, 6x6) on the scene's screen")
-    p.add_argument("--out", type=Path, required=True, help="dataset folder (resumed if interrupted)")
-    p.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
-    p.add_argument("--trajectory", choices=("fixations", "saccades", "grid"), default="fixations")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb when libLLVM >= 16 is found, "
-                                     "else scalar_rgb)")
-    p.add_argument("--cornea", choices=("dielectric", "conductor"), default="dielectric")
-    p.add_argument("--raw", nargs="?", const="SGBRG10_CSI2P", metavar="FORMAT",
-                   help="also write the frames as the OV5647 reads them out (SGBRG10_CSI2P, the "
-                        "default, or SGBRG10), with capture.json, so they read as a capture")
-    p.set_defaults(func=cmd_render)
+    add_render_parser(sub, scene_help)
 
     p = sub.add_parser("export-mitsuba", help="write a Mitsuba XML scene (+ meshes) of a scene file")
     p.add_argument("scene", nargs="?", help=scene_help)
@@ -406,12 +278,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="samples CSV")
     p.set_defaults(func=cmd_track)
 
-    p = sub.add_parser("score", help="score samples CSVs against a rendered dataset's ground truth")
-    p.add_argument("samples", type=Path, nargs="+", help="samples CSV files (one per method)")
-    p.add_argument("dataset", type=Path, help="the dataset folder the samples were tracked from")
-    p.add_argument("--markdown", type=Path, help="write the tables (and a plot) to this .md file")
-    p.add_argument("--no-plots", action="store_true", help="no figure beside --markdown")
-    p.set_defaults(func=cmd_score)
+    add_dataset_parsers(sub)
 
     p = sub.add_parser("validate", help="the main job: render, calibrate, track and compare with "
                                         "ground truth and with the feature-level simulation")

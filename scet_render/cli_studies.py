@@ -4,27 +4,9 @@ imports happen inside the commands; progress bars live here, not in the library.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
-
-class _Bars:
-    """One tqdm bar per stage of a ``progress(stage, done, total)`` callback."""
-
-    def __init__(self):
-        self.bars = {}
-
-    def update(self, stage: str, done: int, total: int) -> None:
-        from tqdm import tqdm
-
-        bar = self.bars.get(stage)
-        if bar is None:
-            bar = self.bars[stage] = tqdm(total=total, desc=stage, file=sys.stderr, leave=False)
-        bar.update(done - bar.n)
-
-    def close(self) -> None:
-        for bar in self.bars.values():
-            bar.close()
+from .cli_progress import StageBars
 
 
 def rendered_band_shares(setup, samples_csv) -> dict:
@@ -68,7 +50,7 @@ def cmd_design_lights(args) -> int:
                               need=args.need, motion=args.motion, search_step=args.search_step,
                               candidates=args.candidates)
     out = args.out or Path("scenes") / f"{setup.name}_designed.toml"
-    bars = _Bars()
+    bars = StageBars()
     try:
         result = design_lights(setup, budget, region, settings, progress=bars.update)
     finally:
@@ -88,7 +70,7 @@ def cmd_design_lights(args) -> int:
     return 0
 
 
-def _validate_design(scene_path: Path, args, bars: _Bars) -> str:
+def _validate_design(scene_path: Path, args, bars: StageBars) -> str:
     """``scet validate --quick`` on the designed scene; the report's section on it."""
     from estimator.scene import load_scene
     from estimator.banding import scaled_setup, strobe_setup
@@ -96,7 +78,7 @@ def _validate_design(scene_path: Path, args, bars: _Bars) -> str:
 
     name = scene_path.stem
     report_dir = Path(args.report_dir) / f"{name}_validation"
-    bars2 = _Bars()
+    bars2 = StageBars()
     try:
         result = run_validation(str(scene_path), quick=True, out_dir=Path(args.validate_out) / name,
                                 seed=args.seed, progress=bars2.update, report_dir=report_dir)
@@ -133,7 +115,7 @@ def cmd_study_events(args) -> int:
             raise ValueError(f"--lighting {item!r}: expected LABEL=SCENE, e.g. designed=scenes/"
                              "paper_sim_designed.toml")
         lightings[label] = scene
-    bars = _Bars()
+    bars = StageBars()
     try:
         conditions, path = run_event_study(lightings, quick=args.quick, out_dir=args.out,
                                            report_dir=args.report_dir, seed=args.seed,

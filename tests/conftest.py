@@ -29,10 +29,10 @@ if os.environ.get("SCET_REQUIRE_ALL") == "1":
     settings.load_profile("ci")
 
 
-#: Modules of the extras in pyproject.toml ('render', 'fast', 'test', 'hardware', 'events')
-#: and of matplotlib.
+#: Modules of the extras in pyproject.toml ('render', 'fast', 'test', 'hardware', 'events',
+#: 'cluster') and of matplotlib.
 EXTRAS = ("mitsuba", "drjit", "OpenEXR", "trimesh", "numba", "hypothesis", "matplotlib", "serial",
-          "pymovements")
+          "pymovements", "ray")
 #: Modules of the 'render' and 'fast' extras, which the base install must do without.
 BASE_EXCLUDES = ("mitsuba", "drjit", "OpenEXR", "trimesh", "numba")
 

@@ -38,7 +38,7 @@ LAYERS = {
         {"simulate", "band_diagram"},
         {"dataset"},
         {"validate", "reproduce", "design", "study"},
-        {"cli", "cli_studies", "__main__"},
+        {"cli", "cli_data", "cli_progress", "cli_studies", "__main__"},
     ],
 }
 #: What each package may import of the other packages and heavy libraries.

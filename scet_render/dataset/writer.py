@@ -42,9 +42,12 @@ Labels are computed from the setup, the trajectory and the banding model
 (:func:`estimator.banding.band_layout`, :func:`scet_render.simulate.ground_truth_glints`), so
 they need no rendering and are rebuilt whole at the end of every run.
 
-Writing is crash-safe and resumable. Every file is written to ``<name>.partial`` in its own
-folder and moved into place with :func:`os.replace`; a frame counts as done when both its EXR
-and PNG exist. All randomness of frame f derives from ``SeedSequence([seed, stream, f])``, so a
+Writing is crash-safe and resumable. Every file is written to a temporary name unique to its
+writer (``<name>.<pid>-<thread>-<n>.partial``, :mod:`estimator.formats`) in its own folder and
+moved into place with :func:`os.replace`; a frame counts as done when both its EXR and PNG are
+intact (they decode; the EXR names the frame and the scene), so a truncated file is rendered
+again. The steps (prepare, render each frame, finalize) are :mod:`scet_render.dataset.jobs`;
+:mod:`scet_render.dataset.distributed` runs the middle one on a Ray cluster. All randomness of frame f derives from ``SeedSequence([seed, stream, f])``, so a
 run that is killed at any point and started again with the same arguments renders only the
 missing frames and ends with a dataset byte-identical to an uninterrupted run. A run pointed at
 a folder that holds a different dataset (other scene, seed, frame count, ...) refuses with a
@@ -72,28 +75,20 @@ from .format import (
     _STREAM_TRAJECTORY,
     FIXATION_S,
     FORMAT,
-    FRAMES_DIR,
     GRID_COLS,
     GRID_ROWS,
-    LABELS_NAME,
     MANIFEST_NAME,
     SACCADE_FIXATION_RANGE_S,
     VERSION,
+    DatasetMismatchError,
     RenderSummary,
     _check_int,
     _check_kind,
     _exr,
     counts_png,
 )
+from .jobs import DatasetPlan, commit_manifest, finalize_dataset, prepare_dataset
 from .labels import frame_labels, visible_bands
-from .manifest import (
-    _compare_manifests,
-    _frame_done,
-    _manifest,
-    _manifest_bytes,
-    _prepare_folder,
-    _scene_text,
-)
 
 # --------------------------------------------------------------------------- trajectories
 
@@ -208,58 +203,75 @@ def render_dataset(
     ValueError
         Bad arguments.
     """
-    frames = _check_int("frames", frames, 1)
-    spp = _check_int("spp", spp, 1)
-    seed = _check_int("seed", seed, 0)
-    kind = _check_kind(trajectory)
-    if not isinstance(cornea, str):
-        raise ValueError(f"cornea must be a string, got {cornea!r}")
-    if variant is not None and not isinstance(variant, str):
-        raise ValueError(f"variant must be a string or None, got {variant!r}")
-    sensor = SensorModel.from_sensor(setup.sensor) if sensor is None else sensor
-    if not isinstance(sensor, SensorModel):
-        raise ValueError(f"sensor must be a SensorModel, got {type(sensor).__name__}")
-    text = _scene_text(setup, scene_text)
-    out = Path(out_dir)
-
-    manifest = _manifest(setup, text, frames=frames, spp=spp, kind=kind, seed=seed,
-                         variant=variant, cornea=cornea, sensor=sensor)
-    existing = _prepare_folder(out)
-    if existing is not None:
-        # The variant that None resolves to is known only once the renderer exists.
-        _compare_manifests(existing, manifest, out / MANIFEST_NAME, before_renderer=True,
-                           ignore_variant=variant is None)
-    frames_dir = out / FRAMES_DIR
-    done = [f for f in range(frames) if _frame_done(frames_dir, f)]
-    todo = [f for f in range(frames) if f not in set(done)]
-    traj = dataset_trajectory(setup, kind, frames, seed)
-
-    if todo or existing is None:
-        renderer = _make_renderer(setup, spp=spp, variant=variant, cornea=cornea, seed=seed)
-        manifest["render"]["variant"] = renderer.variant
-        manifest["render"]["renderer"] = _renderer_settings(renderer)
-        if existing is None:
-            out.mkdir(parents=True, exist_ok=True)
-            atomic_write(out / MANIFEST_NAME, _manifest_bytes(manifest))
-        else:
-            _compare_manifests(existing, manifest, out / MANIFEST_NAME)
-    frames_dir.mkdir(exist_ok=True)
-
+    plan = prepare_dataset(setup, out_dir, frames=frames, spp=spp, trajectory=trajectory,
+                           seed=seed, variant=variant, cornea=cornea, sensor=sensor,
+                           scene_text=scene_text)
+    traj = dataset_trajectory(setup, plan.trajectory, plan.frames, plan.seed)
+    renderer = None
+    if plan.todo or plan.existing is None:
+        renderer = make_renderer(plan)
     if progress is not None:
-        progress(len(done), frames)
+        progress(len(plan.done), plan.frames)
     labels = {}  # frame -> its labels, from the bands its render was checked against
-    for f in todo:
-        labels[f] = _render_frame(renderer, setup, sensor, traj, f, seed, frames_dir,
-                                  manifest["scene"]["sha256"])
-        done.append(f)
+    for k, f in enumerate(plan.todo, start=1):
+        labels[f] = render_frame(plan, renderer, traj, f)
         if progress is not None:
-            progress(len(done), frames)
+            progress(len(plan.done) + k, plan.frames)
+    return finalize_dataset(plan, traj, labels)
 
-    lines = [json.dumps(label, allow_nan=False, separators=(",", ":"))
-             for f in range(frames)
-             for label in (labels[f] if f in labels else frame_labels(setup, traj, f))]
-    atomic_write(out / LABELS_NAME, "".join(line + "\n" for line in lines).encode("utf-8"))
-    return RenderSummary(out, tuple(todo), tuple(f for f in range(frames) if f not in set(todo)))
+
+def open_renderer(plan: DatasetPlan, *, threads: int | None = None,
+                  vector_width: int | None = None):
+    """A renderer for a plan, without touching the folder: ``(renderer, variant, settings,
+    host)`` for :func:`~scet_render.dataset.jobs.commit_manifest`.
+
+    On the LLVM backend the vector width is pinned, before anything is compiled, to
+    ``vector_width`` or else to the one the folder's frames were rendered with (none for a new
+    dataset: the CPU's own); ``threads`` sets Dr.Jit's thread count (None leaves it).
+
+    Raises
+    ------
+    DatasetMismatchError
+        This machine cannot run the recorded width.
+    """
+    from ..render.backend import activate, llvm_target, pin_llvm_vector_width
+
+    mi = activate(plan.variant)
+    if threads is not None:
+        import drjit as dr
+
+        dr.set_thread_count(int(threads))
+    host = None
+    if mi.variant().startswith("llvm_"):
+        want = vector_width if vector_width is not None else plan.recorded_vector_width
+        try:
+            host = pin_llvm_vector_width(want) if want is not None else llvm_target()
+        except ValueError as exc:
+            raise DatasetMismatchError(
+                f"{plan.out / MANIFEST_NAME}: the frames are rendered with LLVM kernels {want} "
+                f"lanes wide; this machine cannot render the same bytes ({exc})") from None
+    renderer = _make_renderer(plan.setup, spp=plan.spp, variant=mi.variant(), cornea=plan.cornea,
+                              seed=plan.seed)
+    settings = _renderer_settings(renderer)
+    if host is not None:
+        settings["llvm"] = {"vector_width": host["vector_width"]}
+        host = {"cpu": host["cpu"], "features": host["features"]}
+    return renderer, renderer.variant, settings, host
+
+
+def make_renderer(plan: DatasetPlan, *, threads: int | None = None):
+    """:func:`open_renderer`, and the plan's manifest committed with its settings."""
+    renderer, variant, settings, host = open_renderer(plan, threads=threads)
+    commit_manifest(plan, variant, settings, host)
+    return renderer
+
+
+def render_frame(plan: DatasetPlan, renderer, trajectory: Trajectory, frame: int) -> list[dict]:
+    """Step 2 of :mod:`scet_render.dataset.jobs` for one frame: render, check and write it
+    (idempotent: the same bytes whoever writes it, never a half file); its labels. The
+    manifest must be committed first (by this process or the driver)."""
+    return _render_frame(renderer, plan.setup, plan.sensor, trajectory, frame, plan.seed,
+                         plan.frames_dir, plan.scene_sha256)
 
 
 def _render_frame(renderer, setup: Setup, sensor: SensorModel, traj: Trajectory, frame: int,

@@ -212,3 +212,72 @@ def activate(variant: str | None = None):
 def is_jit_variant(variant: str) -> bool:
     """True for the Dr.Jit-compiled variants (LLVM, CUDA), False for scalar ones."""
     return variant.startswith(("llvm_", "cuda_"))
+
+
+# --------------------------------------------------------------------------- LLVM target
+
+#: Dr.Jit's C entry points for the LLVM backend's target (libdrjit-core, C++ linkage: these are
+#: the mangled names of jit_llvm_vector_width(), jit_llvm_target_cpu(),
+#: jit_llvm_target_features() and jit_llvm_set_target(const char *, const char *, uint32_t)).
+_LLVM_SYMBOLS = {"width": "_Z21jit_llvm_vector_widthv", "cpu": "_Z19jit_llvm_target_cpuv",
+                 "features": "_Z24jit_llvm_target_featuresv",
+                 "set": "_Z19jit_llvm_set_targetPKcS0_j"}
+
+
+def _drjit_core():
+    import drjit
+
+    path = next(Path(drjit.__file__).parent.glob("libdrjit-core*.so*"), None)
+    if path is None:
+        return None
+    try:
+        return ctypes.CDLL(str(path))
+    except OSError:
+        return None
+
+
+def llvm_target() -> dict | None:
+    """The LLVM backend's target: ``cpu``, ``features`` and ``vector_width`` (the lanes every
+    compiled kernel uses; rendered bytes depend on it), or None when the backend's target
+    cannot be read (another Dr.Jit build, no LLVM variant active)."""
+    lib = _drjit_core()
+    try:
+        width = getattr(lib, _LLVM_SYMBOLS["width"])
+        cpu = getattr(lib, _LLVM_SYMBOLS["cpu"])
+        features = getattr(lib, _LLVM_SYMBOLS["features"])
+    except (AttributeError, TypeError):
+        return None
+    width.restype = ctypes.c_uint32
+    cpu.restype = features.restype = ctypes.c_char_p
+    w = int(width())
+    if w == 0:
+        return None
+    return {"cpu": (cpu() or b"").decode(), "features": (features() or b"").decode(),
+            "vector_width": w}
+
+
+def pin_llvm_vector_width(width: int) -> dict:
+    """Compile every later kernel ``width`` lanes wide (on this CPU's own target), so that a
+    machine whose native width differs renders the bytes of one with ``width``; returns the
+    target now in force. Call it before the first kernel is compiled (before the renderer).
+
+    Raises
+    ------
+    ValueError
+        The backend's target cannot be set, or the CPU cannot run kernels that wide.
+    """
+    now = llvm_target()
+    lib = _drjit_core()
+    if now is None or lib is None or not hasattr(lib, _LLVM_SYMBOLS["set"]):
+        raise ValueError("cannot set the LLVM backend's vector width with this Dr.Jit build")
+    if width > now["vector_width"]:
+        raise ValueError(f"this CPU ({now['cpu']}) runs LLVM kernels {now['vector_width']} lanes "
+                         f"wide, not {width}")
+    setter = getattr(lib, _LLVM_SYMBOLS["set"])
+    setter.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32]
+    setter.restype = None
+    setter(now["cpu"].encode(), now["features"].encode(), int(width))
+    after = llvm_target()
+    if after is None or after["vector_width"] != width:
+        raise ValueError(f"the LLVM backend did not take a vector width of {width}")
+    return after
