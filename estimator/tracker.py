@@ -41,11 +41,17 @@ import numpy as np
 
 from .banding import band_layout, strobe_instant
 from .calibration import Calibration
-from .cornea import fit_covariance
-from .eye import EYE_SPEED_MAX_DEG_S
-from .gaze import calibrated_problems, geometric_gaze, polynomial_gaze, posterior_covariance
+from .cornea import fit_covariance, fit_small
+from .eye import EYE_SPEED_MAX_DEG_S, gaze_direction
+from .gaze import (
+    calibrated_problems,
+    geometric_gaze,
+    polynomial_gaze,
+    posterior_covariance,
+    screen_intersection,
+)
 from .glints import NO_BAND, DetectionParams, GlintDetections, GlintDetector
-from .matching import GlintMatcher, MatchParams
+from .matching import BandFollower, FollowParams, GlintMatcher, MatchParams
 from .setup import Setup
 
 log = logging.getLogger(__name__)
@@ -225,11 +231,19 @@ class Tracker:
         Motion model of the prior sparse bands borrow from the previous sample; None turns
         prior assistance off. It needs the calibration's eye centre and orbit radius (without
         them there is no prior either).
+    cheap : bool
+        Identify a band from a recent sample with the cheap path
+        (:class:`estimator.matching.BandFollower`: one prediction, one gated assignment, one
+        small fit, verified) before the hypothesis search, which runs where it declines: the
+        first band, after a sample older than :data:`JUMP_AGE_S`, and wherever its checks
+        fail. ``False`` runs the search on every band (the reference it is compared with).
+        Needs the calibration's eye centre and orbit radius and the ``"orbit"`` model.
     """
 
     def __init__(self, setup: Setup, calibration: Calibration, method: str = "polynomial", *,
                  mapping: str = "eq1_25", detection: DetectionParams = DetectionParams(),
-                 matching: MatchParams = MatchParams(), prior: BandPrior | None = BandPrior()):
+                 matching: MatchParams = MatchParams(), prior: BandPrior | None = BandPrior(),
+                 cheap: bool = True):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         if not isinstance(calibration, Calibration):
@@ -254,6 +268,12 @@ class Tracker:
         self.n_lights = setup.lights.count
         self.prior = prior if calibration.has_orbit and matching.model == "orbit" else None
         self._orbit = self._problems.orbit if self.prior is not None else None
+        self._map = None if method == "geometric" else calibration.mappings[mapping]
+        self.follower = None
+        if cheap and self.prior is not None and (self._map is None or self._map.n_features == 3):
+            self.follower = BandFollower(self.matcher, FollowParams(min_matches=MIN_GLINTS))
+        #: Bands identified by the cheap path and by the hypothesis search (dense bands).
+        self.counts = {"cheap": 0, "search": 0}
         self.reset()
 
     def reset(self) -> None:
@@ -336,7 +356,14 @@ class Tracker:
         return sample
 
     def _dense(self, f, j, time_s, g, rows) -> GazeSample:
-        """A band with enough glints, identified and fitted on its own."""
+        """A band with enough glints, identified and fitted on its own: by the cheap path from
+        a recent sample where it accepts the band, else by the hypothesis search."""
+        if self.follower is not None:
+            sample = self._cheap(f, j, time_s, g, rows)
+            if sample is not None:
+                self.counts["cheap"] += 1
+                return sample
+        self.counts["search"] += 1
         match = self.matcher.match(g, rows=rows, prior_angles_rad=self._prior_angles)
         if not match.ok:
             return _failed(f, j, time_s, f"match_{match.reason}", g)
@@ -367,6 +394,55 @@ class Tracker:
         return GazeSample(f, j, time_s, est.screen_xy_m[0].copy(), est.cornea_center_m[0].copy(),
                           g[used], lights, float(est.rms_px[0]), "ok",
                           match.confidence[used].copy())
+
+    def _cheap(self, f, j, time_s, g, rows) -> GazeSample | None:
+        """The cheap path's sample, or None where it declines (the search decides then).
+
+        Its prior is the previous band's sample, whose rotation the search would start from,
+        or, after bands without a sample, the last sample up to :data:`JUMP_AGE_S` old, after
+        which the search would run cold (its rivals then must lose without the prior's
+        term). Every outcome but an accepted band with an estimate below
+        :data:`MAX_RESIDUAL_PX` and no :data:`IMPLAUSIBLE_JUMP` goes to the search, which
+        gives those failures their reasons."""
+        fresh = self._prior_angles is not None
+        if fresh:
+            prior = self._prior_angles
+        elif self._state is not None and 0 <= time_s - self._state[0] <= JUMP_AGE_S:
+            prior = self._state[1]
+        else:
+            return None
+        got = self.follower.follow(g, rows, prior, prior_term=fresh)
+        if got is None:
+            return None
+        match, orbit = got.match, got.fit
+        used = match.matched
+        lights = match.light_index[used]
+        if self.method == "polynomial":
+            start = match.cornea_center_m if self._start is None else self._start
+            fit = fit_small(self._problems.center, g[used],
+                            self._problems.center.lights_world_m[lights], start, model="center",
+                            arrays=self.follower.arrays)
+            if not fit.ok:
+                return None
+            center, rms, resume = fit.x, fit.rms_px, fit.x
+            xy = self._map.predict(center[None])[0]
+        else:
+            center, rms, resume = match.cornea_center_m, orbit.rms_px, orbit.x
+            point, hits = screen_intersection(self.calibration.eye_center_m,
+                                              gaze_direction(orbit.x[0], orbit.x[1])[None],
+                                              self.setup.screen.z_m)
+            xy = point[0, :2] if hits[0] else np.full(2, np.nan)
+        if not (np.isfinite(xy).all() and rms <= MAX_RESIDUAL_PX) or \
+                self._implausible(time_s, match.angles_rad):
+            return None
+        self._prior_angles = match.angles_rad
+        self._start = resume.copy()
+        JtJ = orbit.JtJ
+        well = np.linalg.det(JtJ) > 1e-12 * JtJ[0, 0] * JtJ[1, 1]
+        cov = self.prior.noise_px ** 2 * np.linalg.inv(JtJ) if well else np.full((2, 2), np.inf)
+        self._state = (time_s, match.angles_rad.copy(), cov)
+        return GazeSample(f, j, time_s, np.asarray(xy, dtype=np.float64).copy(), center.copy(),
+                          g[used], lights, float(rms), "ok", match.confidence[used].copy())
 
     def _assisted(self, f, j, time_s, g, rows, failed: GazeSample) -> GazeSample:
         """A sparse band (or one whose identification failed) with the previous sample's
