@@ -30,7 +30,7 @@ LAYERS = {
         {"gaze"},
         {"glints", "capture"},
         {"matching"},
-        {"tracker"},
+        {"tracker", "samples"},
         {"folders"},
     ],
     "scet_render": [

@@ -90,6 +90,9 @@ class BandFollower:
         #: The camera as the compiled kernels take it (:func:`estimator.geometry.camera_arrays`).
         self.arrays = camera_arrays(matcher.setup.camera)
         self._lights = np.ascontiguousarray(matcher.lights_world_m, dtype=np.float64)
+        # Each light's neighbour -2, -1, +1, +2 places along its own arc (-1 off the arc).
+        every = np.arange(self._lights.shape[0])
+        self._shifted = np.stack([matcher._shift(every, s) for s in (-2, -1, 1, 2)], axis=1)
 
     def predict(self, angles_rad):
         """Glints (n, 2) and visibility (n,) of every light at one rotation (2,)."""
@@ -180,7 +183,7 @@ class BandFollower:
         dp = (self.predict((x[0], x[1] + h))[0] - self.predict((x[0], x[1] - h))[0]) / (2 * h)
         J = np.stack([dy, dp], axis=-1)  # (n, 2, 2) px / rad
         finite = vis & np.isfinite(J).all(axis=(1, 2)) & np.isfinite(pred).all(axis=1)
-        A = np.stack([m._shift(assign, s) for s in (-2, -1, 1, 2)])  # (4, k) rival lights
+        A = np.where(assign >= 0, self._shifted[np.maximum(assign, 0)].T, -1)  # (4, k) lights
         use = A >= 0
         use[use] = finite[A[use]]
         use &= use.any(axis=1, keepdims=True)
