@@ -26,6 +26,7 @@ import json
 import logging
 import math
 import re
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterator
@@ -399,11 +400,17 @@ SAMPLE_COLUMNS = ("frame", "strobe", "time_s", "screen_x_m", "screen_y_m", "corn
 
 @dataclass(frozen=True, slots=True)
 class TrackSummary:
-    """What :func:`track_folder` did: the CSV written, and the samples."""
+    """What :func:`track_folder` did: the CSV written, the samples, the frames, and the
+    seconds spent tracking them (reading the frames not included)."""
 
     path: Path
     samples: tuple
     frames: int
+    seconds: float = math.nan
+
+    @property
+    def samples_per_s(self) -> float:
+        return len(self.samples) / self.seconds if self.seconds > 0 else math.nan
 
     @property
     def n_ok(self) -> int:
@@ -440,7 +447,9 @@ def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "p
     timing = read_timing(folder, setup)
     total = len(timing.frame_start_s)
     samples = []
+    busy = 0.0
     for done, (f, t0, img, err) in enumerate(iter_folder(folder, setup), start=1):
+        t = time.perf_counter()
         if err is not None:
             log.warning("frame %d: %s", f, err)
             reason = MISSING_FRAME if err.endswith(": missing") else UNREADABLE_FRAME
@@ -449,12 +458,13 @@ def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "p
             out = [replace(s, reason=reason) for s in out]
         else:
             out = tracker.process(img, f, t0)
+        busy += time.perf_counter() - t
         samples.extend(out)
         if progress is not None:
             progress(done, total)
     out_csv = Path(out_csv)
     write_samples_csv(out_csv, samples)
-    return TrackSummary(out_csv, tuple(samples), total)
+    return TrackSummary(out_csv, tuple(samples), total, busy)
 
 
 def samples_csv(samples) -> str:

@@ -32,6 +32,7 @@ LAYERS = {
         {"matching"},
         {"tracker", "samples"},
         {"folders"},
+        {"live"},
     ],
     "scet_render": [
         {"render", "motion"},
