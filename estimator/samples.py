@@ -1,16 +1,27 @@
 """The tracker's value types: :class:`GazeSample` (one band's estimate) and :class:`BandPrior`
-(the motion model of the prior a sparse band borrows from the previous sample), and
-:func:`failed_sample` (a NaN sample with a reason).
+(the motion model of the prior a sparse band borrows from the previous sample),
+:func:`failed_sample` (a NaN sample with a reason), the samples CSV (format ``scet-samples``,
+version 2) and :class:`TrackerInputError`.
 """
 
 from __future__ import annotations
 
+import csv
+import io
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from .eye import EYE_SPEED_MAX_DEG_S
+from .formats import SAMPLES_FORMAT, SAMPLES_READABLE, SAMPLES_VERSION, atomic_write
+
+
+class TrackerInputError(ValueError):
+    """A tracker input file (timing sidecar, calibration, frames folder) is missing or
+    malformed; the message names the file (and key)."""
+
 
 
 @dataclass(frozen=True, slots=True)
@@ -117,3 +128,49 @@ def failed_sample(frame_index: int, strobe_index: int, time_s: float, reason: st
     li = np.zeros(0, dtype=np.int64) if light_index is None else np.asarray(light_index, np.int64)
     return GazeSample(frame_index, strobe_index, time_s, np.full(2, np.nan), np.full(3, np.nan),
                       g, li, float("nan"), reason, np.zeros(li.shape[0]))
+
+
+SAMPLE_COLUMNS = ("frame", "strobe", "time_s", "screen_x_m", "screen_y_m", "cornea_x_m",
+                  "cornea_y_m", "cornea_z_m", "n_glints", "lights", "residual_px", "reason",
+                  "prior")
+
+
+def samples_csv(samples) -> str:
+    """CSV text of samples: a ``# scet-samples 2`` line, the header, one row per sample
+    (``prior``: 1 for a prior-assisted sample, else 0)."""
+    buf = io.StringIO()
+    buf.write(f"# {SAMPLES_FORMAT} {SAMPLES_VERSION}\n")
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(SAMPLE_COLUMNS)
+    for s in samples:
+        w.writerow([s.frame_index, s.strobe_index, repr(float(s.time_s)),
+                    *(repr(float(v)) for v in s.screen_xy_m),
+                    *(repr(float(v)) for v in s.cornea_center_m), s.n_glints,
+                    ";".join(str(int(i)) for i in s.light_index), repr(float(s.residual_px)),
+                    s.reason, int(s.prior_assisted)])
+    return buf.getvalue()
+
+
+def write_samples_csv(path, samples) -> Path:
+    """Write :func:`samples_csv` of ``samples`` to ``path`` atomically; returns the path."""
+    return atomic_write(Path(path), samples_csv(samples))
+
+
+def read_samples_csv(path) -> list[dict]:
+    """Rows of a ``samples.csv`` (values as strings), after checking its format line.
+
+    Reads versions 1 and 2 (:data:`SAMPLES_READABLE`); rows of version 1, written before prior
+    assistance existed, get ``prior`` "0"."""
+    path = Path(path)
+    text = path.read_text(encoding="utf-8")
+    first, _, rest = text.partition("\n")
+    known = {f"# {SAMPLES_FORMAT} {v}": v for v in SAMPLES_READABLE}
+    version = known.get(first.strip())
+    if version is None:
+        raise TrackerInputError(f"{path}: expected first line '# {SAMPLES_FORMAT} <version>' "
+                                f"with version in {SAMPLES_READABLE}, got {first[:60]!r}")
+    rows = list(csv.DictReader(io.StringIO(rest)))
+    if version == 1:
+        for r in rows:
+            r["prior"] = "0"
+    return rows

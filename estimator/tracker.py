@@ -52,7 +52,7 @@ from .gaze import (
 )
 from .glints import NO_BAND, DetectionParams, GlintDetections, GlintDetector
 from .matching import BandFollower, FollowParams, GlintMatcher, MatchParams
-from .samples import BandPrior, GazeSample, failed_sample
+from .samples import BandPrior, GazeSample, TrackerInputError, failed_sample  # noqa: F401
 from .setup import Setup
 
 log = logging.getLogger(__name__)
@@ -104,11 +104,6 @@ JUMP_SLACK_DEG = 2.0
 #: bands (1.04 ms at 16 pulses per frame, 2.08 ms at 8), where 0.05° of estimation error
 #: makes 25-50°/s, against saccades at hundreds.
 VELOCITY_AGE_S = 2.5e-3
-
-
-class TrackerInputError(ValueError):
-    """A tracker input file (timing sidecar, calibration, frames folder) is missing or
-    malformed; the message names the file (and key)."""
 
 
 # --------------------------------------------------------------------------- the stream
