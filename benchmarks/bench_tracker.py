@@ -1,15 +1,21 @@
-"""Tracker throughput on one core: glint detection frames/s and end-to-end samples/s.
+"""Tracker throughput on one core: glint detection frames/s and end-to-end samples/s, the cheap
+path against the hypothesis search on every band, in one run on the same frames.
 
 Frames: 640x480 10-bit banded frames of paper_sim (Gaussian glints at their closed-form
 positions for an eye making saccades, each pulse's glints at the eye's pose then, every pulse's
 row weights, an eye-like background, shot and read noise; :func:`bench_glints.moving_sequence`),
 or with ``--dataset DIR`` the PNG frames of a rendered dataset. Detection is timed through
 :class:`estimator.glints.GlintDetector` (one pass over the frames as a stream, after a warm-up
-that loads its compiled kernels); the
-end-to-end figure through :meth:`estimator.tracker.Tracker.process` (detect, group by strobe,
-match with the previous sample as prior, fit, map), both gaze methods. Usage:
+pass that loads its compiled kernels). End to end, :meth:`estimator.tracker.Tracker.process`
+(detect, group by strobe, predict, assign, fit, map), both gaze methods, ``cheap=False`` (the
+hypothesis search on every band: the path before issue 15) and ``cheap=True`` alternated over
+``--rounds`` rounds on the same frames (the machine's speed drifts: ratios are per round):
+samples/s (every lit band is a sample, NaN or not), per-frame latency p50/p99 (frame in, its
+samples out), whether both give the same samples (reasons, identities, estimates to 1e-6 m),
+where each band's microseconds go on the cheap path, and the estimated Raspberry Pi 3B+ figure.
+Usage:
 
-    python benchmarks/bench_tracker.py [--frames 24] [--dataset DIR]
+    python benchmarks/bench_tracker.py [--frames 24] [--rounds 3] [--dataset DIR]
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ import os
 import platform
 import sys
 import time
+from collections import defaultdict
 from pathlib import Path
 
 for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -30,13 +37,22 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_glints import moving_sequence  # noqa: E402
 
-from estimator.calibration import Calibration, fit_gaze_mapping
+import estimator.matching.follow as follow_module  # noqa: E402
+import estimator.tracker as tracker_module  # noqa: E402
+from estimator.calibration import Calibration, fit_gaze_mapping  # noqa: E402
 from estimator.folders import iter_folder  # noqa: E402
 from estimator.gaze import fit_cornea_centers  # noqa: E402
-from estimator.glints import GlintDetector
+from estimator.glints import GlintDetections, GlintDetector  # noqa: E402
 from estimator.scene import load_scene  # noqa: E402
 from estimator.tracker import Tracker  # noqa: E402
 from scet_render.simulate import ground_truth_glints  # noqa: E402
+
+#: A Raspberry Pi 3B+ core against this kind of x86 core: 15x slower, 10-30x the range
+#: (../shared/HARDWARE.md Sec. 12: Quake/Doom single-thread times of a Pi 2 and a Core
+#: i3-3220, Pi 3B+ / Pi 2 ratios, desktop / Ivy Bridge ratios; SIMD-bound numpy 15-30x).
+PI_FACTOR, PI_RANGE = 15.0, (10.0, 30.0)
+PI_SOURCE = "shared/HARDWARE.md Sec. 12 (planning rule: x86 single-thread time x 15, 10-30)"
+STAGES = ("detect", "group", "predict", "assign", "fit", "map", "search", "other")
 
 
 def ground_truth_calibration(setup) -> Calibration:
@@ -54,9 +70,81 @@ def synthetic_frames(setup, n: int, rng):
     return moving_sequence(setup, n, rng)[0]
 
 
+def run(tracker, frames):
+    """Samples and per-frame seconds of one pass."""
+    samples, lat = [], []
+    for f, t0, img in frames:
+        t = time.perf_counter()
+        samples.extend(tracker.process(img, f, t0))
+        lat.append(time.perf_counter() - t)
+    return samples, np.array(lat)
+
+
+def same(a, b) -> bool:
+    return len(a) == len(b) and all(
+        x.reason == y.reason and np.array_equal(x.light_index, y.light_index)
+        and (not x.ok or np.abs(x.cornea_center_m - y.cornea_center_m).max() < 1e-6)
+        for x, y in zip(a, b))
+
+
+class _Timed:
+    """Wraps a callable, adding its seconds to ``totals[stage]`` (not inside a search, whose
+    predictions and assignments count as the search's)."""
+
+    def __init__(self, fn, totals, stage):
+        self.fn, self.totals, self.stage = fn, totals, stage
+
+    def __call__(self, *a, **k):
+        if self.totals["_searching"]:
+            return self.fn(*a, **k)
+        self.totals["_searching"] = self.stage == "search"
+        t = time.perf_counter()
+        try:
+            return self.fn(*a, **k)
+        finally:
+            self.totals[self.stage] += time.perf_counter() - t
+            self.totals["_searching"] = False
+
+
+class _TimedMapping:
+    def __init__(self, mapping, totals):
+        self.mapping, self.n_features = mapping, mapping.n_features
+        self.predict = _Timed(mapping.predict, totals, "map")
+
+
+def breakdown(setup, cal, method, frames) -> dict:
+    """Seconds per stage of one cheap-path pass (the stages wrapped where they are called;
+    nested stages are subtracted from their callers)."""
+    totals = defaultdict(float)
+    tr = Tracker(setup, cal, method)
+    tr._detector = _Timed(tr._detector, totals, "detect")
+    tr.follower.predict = _Timed(tr.follower.predict, totals, "predict")
+    m = tr.matcher
+    m._assign = _Timed(m._assign, totals, "assign")
+    m._final_assign = _Timed(m._final_assign, totals, "assign")
+    saved = (follow_module.fit_small, tracker_module.fit_small,
+             tracker_module.screen_intersection, GlintDetections.of_strobe, m.match)
+    follow_module.fit_small = tracker_module.fit_small = _Timed(saved[0], totals, "fit")
+    tracker_module.screen_intersection = _Timed(saved[2], totals, "map")
+    GlintDetections.of_strobe = lambda self, j, _f=saved[3]: _Timed(_f, totals, "group")(self, j)
+    m.match = _Timed(m.match, totals, "search")
+    if tr._map is not None:
+        tr._map = _TimedMapping(tr._map, totals)
+    try:
+        t = time.perf_counter()
+        samples, _ = run(tr, frames)
+        wall = time.perf_counter() - t
+    finally:
+        (follow_module.fit_small, tracker_module.fit_small, tracker_module.screen_intersection,
+         GlintDetections.of_strobe) = saved[:4]
+    totals["other"] = wall - sum(totals[s] for s in STAGES if s != "other")
+    return {"samples": len(samples), "wall": wall, **totals}
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=24)
+    ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--dataset", type=Path, default=None)
     args = ap.parse_args(argv)
     setup = load_scene("paper_sim")
@@ -69,33 +157,59 @@ def main(argv=None):
 
         width = json.loads((args.dataset / "manifest.json").read_text())["image"]["width_px"]
         setup = scaled_setup(setup, setup.camera.width_px // int(width))
-        frames = [(f, img) for f, _, img, err in iter_folder(args.dataset, setup)
+        frames = [(f, t0, img) for f, t0, img, err in iter_folder(args.dataset, setup)
                   if err is None][: args.frames]
     else:
-        frames = synthetic_frames(setup, args.frames, rng)
+        frames = [(f, None, img) for f, img in synthetic_frames(setup, args.frames, rng)]
     print(f"{platform.processor() or platform.machine()}, {len(frames)} frames "
-          f"{setup.camera.width_px}x{setup.camera.height_px}, one core")
+          f"{setup.camera.width_px}x{setup.camera.height_px}, "
+          f"{setup.strobe.pulses_per_frame} pulses/frame, one core")
 
-    for f, img in frames[:2]:  # load (or compile) the detector's kernels before timing
-        GlintDetector(setup)(img, f)
-    detector = GlintDetector(setup)
-    t = time.perf_counter()
-    n_glints = sum(len(detector(img, f)) for f, img in frames)
-    dt = time.perf_counter() - t
+    for _ in range(2):  # load (or compile) the detector's kernels, windowed ones included
+        detector = GlintDetector(setup)
+        t = time.perf_counter()
+        n_glints = sum(len(detector(img, f)) for f, _, img in frames)
+        dt = time.perf_counter() - t
     print(f"detection (GlintDetector, one pass): {len(frames) / dt:.1f} frames/s "
           f"({1e3 * dt / len(frames):.2f} ms/frame, {n_glints / len(frames):.1f} glints/frame, "
           f"{detector.windowed} of {detector.frames} frames in a window)")
 
     cal = ground_truth_calibration(setup)
     for method in ("polynomial", "geometric"):
-        tr = Tracker(setup, cal, method)
-        t = time.perf_counter()
-        samples = [s for f, img in frames for s in tr.process(img, f)]
-        dt = time.perf_counter() - t
-        ok = sum(s.ok for s in samples)
-        print(f"tracker {method}: {len(samples) / dt:.1f} samples/s "
-              f"({ok / dt:.1f} estimated samples/s, {ok}/{len(samples)} ok, "
-              f"{len(frames) / dt:.1f} frames/s)")
+        for cheap in (False, True):  # compile the cheap path's kernels before timing
+            run(Tracker(setup, cal, method, cheap=cheap), frames[:3])
+        rates = {False: [], True: []}
+        lats = {False: [], True: []}
+        agree, counts = True, None
+        for _ in range(args.rounds):
+            out = {}
+            for cheap in (False, True):
+                tr = Tracker(setup, cal, method, cheap=cheap)
+                samples, lat = run(tr, frames)
+                rates[cheap].append(len(samples) / lat.sum())
+                lats[cheap].append(lat)
+                out[cheap] = samples
+                if cheap:
+                    counts = dict(tr.counts)
+            agree &= same(out[False], out[True])
+            ok = sum(s.ok for s in out[True])
+        ratio = np.array(rates[True]) / np.array(rates[False])
+        for cheap, name in ((False, "search every band"), (True, "cheap path")):
+            r, lat = np.array(rates[cheap]), np.concatenate(lats[cheap]) * 1e3
+            print(f"tracker {method}, {name}: {np.median(r):.0f} samples/s "
+                  f"(rounds {r.min():.0f}-{r.max():.0f}), latency p50 {np.percentile(lat, 50):.2f} ms, "
+                  f"p99 {np.percentile(lat, 99):.2f} ms per frame")
+        print(f"  cheap / search: {np.median(ratio):.1f}x (rounds {ratio.min():.1f}-{ratio.max():.1f}); "
+              f"bands: {counts['cheap']} cheap, {counts['search']} searched; {ok}/{len(out[True])} "
+              f"samples estimated; same samples: {'yes' if agree else 'NO'}")
+        b = breakdown(setup, cal, method, frames)
+        per = {s: 1e6 * b[s] / b["samples"] for s in STAGES}
+        print("  us per band (cheap path): " + ", ".join(f"{s} {per[s]:.0f}" for s in STAGES)
+              + f"; total {1e6 * b['wall'] / b['samples']:.0f}")
+        best = np.median(rates[True])
+        print(f"  Raspberry Pi 3B+ estimate: {best / PI_FACTOR:.0f} samples/s per core "
+              f"({best / PI_RANGE[1]:.0f}-{best / PI_RANGE[0]:.0f}; factor {PI_FACTOR:g}, "
+              f"range {PI_RANGE[0]:g}-{PI_RANGE[1]:g}, {PI_SOURCE})")
 
 
 if __name__ == "__main__":

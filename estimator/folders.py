@@ -20,12 +20,11 @@ plus the ``prior`` column) atomically; :func:`read_samples_csv` reads both versi
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import logging
 import math
 import re
+import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterator
@@ -40,9 +39,6 @@ from .formats import (
     FRAMES_DIR,
     LABELS_NAME,
     MANIFEST_NAME,
-    SAMPLES_FORMAT,
-    SAMPLES_READABLE,
-    SAMPLES_VERSION,
     TIMING_FORMAT,
     TIMING_NAME,
     TIMING_VERSION,
@@ -54,6 +50,7 @@ from .gaze import fit_cornea_centers
 from .glints import NO_BAND, detect_glints
 from .matching import GlintMatcher
 from .setup import Setup
+from .samples import SAMPLE_COLUMNS, read_samples_csv, samples_csv, write_samples_csv  # noqa: F401
 from .tracker import MIN_GLINTS, MISSING_FRAME, UNREADABLE_FRAME, Tracker, TrackerInputError
 
 log = logging.getLogger(__name__)
@@ -392,18 +389,20 @@ def load_calibration(path) -> Calibration:
 # --------------------------------------------------------------------------- tracking a folder
 
 
-SAMPLE_COLUMNS = ("frame", "strobe", "time_s", "screen_x_m", "screen_y_m", "cornea_x_m",
-                  "cornea_y_m", "cornea_z_m", "n_glints", "lights", "residual_px", "reason",
-                  "prior")
-
 
 @dataclass(frozen=True, slots=True)
 class TrackSummary:
-    """What :func:`track_folder` did: the CSV written, and the samples."""
+    """What :func:`track_folder` did: the CSV written, the samples, the frames, and the
+    seconds spent tracking them (reading the frames not included)."""
 
     path: Path
     samples: tuple
     frames: int
+    seconds: float = math.nan
+
+    @property
+    def samples_per_s(self) -> float:
+        return len(self.samples) / self.seconds if self.seconds > 0 else math.nan
 
     @property
     def n_ok(self) -> int:
@@ -440,7 +439,9 @@ def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "p
     timing = read_timing(folder, setup)
     total = len(timing.frame_start_s)
     samples = []
+    busy = 0.0
     for done, (f, t0, img, err) in enumerate(iter_folder(folder, setup), start=1):
+        t = time.perf_counter()
         if err is not None:
             log.warning("frame %d: %s", f, err)
             reason = MISSING_FRAME if err.endswith(": missing") else UNREADABLE_FRAME
@@ -449,50 +450,10 @@ def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "p
             out = [replace(s, reason=reason) for s in out]
         else:
             out = tracker.process(img, f, t0)
+        busy += time.perf_counter() - t
         samples.extend(out)
         if progress is not None:
             progress(done, total)
     out_csv = Path(out_csv)
     write_samples_csv(out_csv, samples)
-    return TrackSummary(out_csv, tuple(samples), total)
-
-
-def samples_csv(samples) -> str:
-    """CSV text of samples: a ``# scet-samples 2`` line, the header, one row per sample
-    (``prior``: 1 for a prior-assisted sample, else 0)."""
-    buf = io.StringIO()
-    buf.write(f"# {SAMPLES_FORMAT} {SAMPLES_VERSION}\n")
-    w = csv.writer(buf, lineterminator="\n")
-    w.writerow(SAMPLE_COLUMNS)
-    for s in samples:
-        w.writerow([s.frame_index, s.strobe_index, repr(float(s.time_s)),
-                    *(repr(float(v)) for v in s.screen_xy_m),
-                    *(repr(float(v)) for v in s.cornea_center_m), s.n_glints,
-                    ";".join(str(int(i)) for i in s.light_index), repr(float(s.residual_px)),
-                    s.reason, int(s.prior_assisted)])
-    return buf.getvalue()
-
-
-def write_samples_csv(path, samples) -> Path:
-    """Write :func:`samples_csv` of ``samples`` to ``path`` atomically; returns the path."""
-    return atomic_write(Path(path), samples_csv(samples))
-
-
-def read_samples_csv(path) -> list[dict]:
-    """Rows of a ``samples.csv`` (values as strings), after checking its format line.
-
-    Reads versions 1 and 2 (:data:`SAMPLES_READABLE`); rows of version 1, written before prior
-    assistance existed, get ``prior`` "0"."""
-    path = Path(path)
-    text = path.read_text(encoding="utf-8")
-    first, _, rest = text.partition("\n")
-    known = {f"# {SAMPLES_FORMAT} {v}": v for v in SAMPLES_READABLE}
-    version = known.get(first.strip())
-    if version is None:
-        raise TrackerInputError(f"{path}: expected first line '# {SAMPLES_FORMAT} <version>' "
-                                f"with version in {SAMPLES_READABLE}, got {first[:60]!r}")
-    rows = list(csv.DictReader(io.StringIO(rest)))
-    if version == 1:
-        for r in rows:
-            r["prior"] = "0"
-    return rows
+    return TrackSummary(out_csv, tuple(samples), total, busy)

@@ -35,17 +35,24 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
 from .banding import band_layout, strobe_instant
 from .calibration import Calibration
-from .cornea import fit_covariance
-from .eye import EYE_SPEED_MAX_DEG_S
-from .gaze import calibrated_problems, geometric_gaze, polynomial_gaze, posterior_covariance
+from .cornea import fit_covariance, fit_small
+from .eye import gaze_direction
+from .gaze import (
+    calibrated_problems,
+    geometric_gaze,
+    polynomial_gaze,
+    posterior_covariance,
+    screen_intersection,
+)
 from .glints import NO_BAND, DetectionParams, GlintDetections, GlintDetector
-from .matching import GlintMatcher, MatchParams
+from .matching import BandFollower, FollowParams, GlintMatcher, MatchParams
+from .samples import BandPrior, GazeSample, TrackerInputError, failed_sample  # noqa: F401
 from .setup import Setup
 
 log = logging.getLogger(__name__)
@@ -93,115 +100,10 @@ JUMP_AGE_S = 0.02
 #: to a chain 19-28 deg away from the previous sample 1 ms before; right samples differ from
 #: the previous one by well under a degree.
 JUMP_SLACK_DEG = 2.0
-
-
-@dataclass(frozen=True, slots=True)
-class BandPrior:
-    """Motion model of the prior a sparse band borrows from the previous sample.
-
-    The previous sample's Fick angles θ_k (covariance Σ_k: its fit's, σ² (JᵀJ)⁻¹, or the
-    posterior of its own prior-assisted fit) predict the eye rotation at time t as a Gaussian of
-    mean θ_k and covariance Σ_k + (v_max (t - t_k))² I: the eye may have turned at up to
-    ``eye_speed_max_deg_s`` on each axis since. The speed bound enters as one SD, so a saccade
-    at full speed costs 1 in the squared Mahalanobis distance: the prior does not pull it back,
-    it only tells identities apart (at 16 pulses per frame, 1.04 ms between bands, SD 0.62°,
-    against the ~2° between neighbouring glints of an arc in ``paper_sim``).
-
-    Attributes
-    ----------
-    eye_speed_max_deg_s : float
-        Per-axis eye speed bound (:data:`estimator.eye.EYE_SPEED_MAX_DEG_S`).
-    max_sd_deg : float
-        A prior whose SD (largest axis) exceeds this is not used. The wider the prior, the
-        likelier a sparse band's chain shifted by one light (~2° away) or a blob passes for the
-        right identities: measured on 150 simulated bands of 1-3 glints with clutter
-        (paper_sim), 99.6 % of the claimed identities were right at 0.62° SD, 98.5 % at 0.8°,
-        97 % at 1.25°. In practice this is the prior's age limit: 1.25 ms at 600°/s, one band
-        period at 16 pulses per frame (1.04 ms), not at 8 (2.08 ms).
-    noise_px : float
-        Glint noise σ (px per axis) that weighs the prior against the glints and sizes the
-        samples' covariances: the matcher's (the upper end of the detector's error), which
-        errs on the side of a wider posterior.
-    """
-
-    eye_speed_max_deg_s: float = EYE_SPEED_MAX_DEG_S
-    max_sd_deg: float = 0.75
-    noise_px: float = 0.5
-
-    def __post_init__(self):
-        for name in ("eye_speed_max_deg_s", "max_sd_deg", "noise_px"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"BandPrior.{name} must be positive, got {getattr(self, name)!r}")
-
-    def predict(self, cov_rad2, elapsed_s: float):
-        """Covariance (2, 2) rad² after ``elapsed_s``, or None when its SD exceeds the limit."""
-        if not elapsed_s >= 0:
-            return None
-        grown = np.asarray(cov_rad2) + (math.radians(self.eye_speed_max_deg_s) * elapsed_s) ** 2 * np.eye(2)
-        if not np.isfinite(grown).all() or np.linalg.eigvalsh(grown)[-1] > math.radians(self.max_sd_deg) ** 2:
-            return None
-        return grown
-
-
-class TrackerInputError(ValueError):
-    """A tracker input file (timing sidecar, calibration, frames folder) is missing or
-    malformed; the message names the file (and key)."""
-
-
-@dataclass(frozen=True, slots=True)
-class GazeSample:
-    """One gaze sample: one strobe pulse (one band) of one frame.
-
-    Attributes
-    ----------
-    frame_index, strobe_index : int
-    time_s : float
-        Strobe instant s_j + Δs / 2 (s), on the sequence clock.
-    screen_xy_m : (2,) float
-        Gaze point on the screen plane (NaN when failed).
-    cornea_center_m : (3,) float
-    glints_px : (k, 2) float
-        The band's detections that were identified and used.
-    light_index : (k,) int
-        Their lights.
-    confidence : (k,) float
-        The matcher's confidence in each identity (:class:`estimator.matching.GlintMatch`).
-    residual_px : float
-        RMS residual of the cornea fit (NaN when failed).
-    reason : str
-        "ok" or why the sample is NaN.
-    prior_assisted : bool
-        The band borrowed the previous sample's estimate as a prior (:class:`BandPrior`): its
-        few glints were identified and fitted with it.
-    """
-
-    frame_index: int
-    strobe_index: int
-    time_s: float
-    screen_xy_m: np.ndarray
-    cornea_center_m: np.ndarray
-    glints_px: np.ndarray
-    light_index: np.ndarray
-    residual_px: float
-    reason: str
-    confidence: np.ndarray
-    prior_assisted: bool = False
-
-    @property
-    def ok(self) -> bool:
-        return self.reason == "ok"
-
-    @property
-    def n_glints(self) -> int:
-        return int(self.light_index.shape[0])
-
-
-def _failed(frame_index: int, strobe_index: int, time_s: float, reason: str,
-            glints_px=None, light_index=None) -> GazeSample:
-    g = np.zeros((0, 2)) if glints_px is None else np.asarray(glints_px, dtype=np.float64)
-    li = np.zeros(0, dtype=np.int64) if light_index is None else np.asarray(light_index, np.int64)
-    return GazeSample(frame_index, strobe_index, time_s, np.full(2, np.nan), np.full(3, np.nan),
-                      g, li, float("nan"), reason, np.zeros(li.shape[0]))
+#: The eye's velocity is measured from two samples at most this far apart (s): neighbouring
+#: bands (1.04 ms at 16 pulses per frame, 2.08 ms at 8), where 0.05° of estimation error
+#: makes 25-50°/s, against saccades at hundreds.
+VELOCITY_AGE_S = 2.5e-3
 
 
 # --------------------------------------------------------------------------- the stream
@@ -225,11 +127,19 @@ class Tracker:
         Motion model of the prior sparse bands borrow from the previous sample; None turns
         prior assistance off. It needs the calibration's eye centre and orbit radius (without
         them there is no prior either).
+    cheap : bool
+        Identify a band from a recent sample with the cheap path
+        (:class:`estimator.matching.BandFollower`: one prediction, one gated assignment, one
+        small fit, verified) before the hypothesis search, which runs where it declines: the
+        first band, after a sample older than :data:`JUMP_AGE_S`, and wherever its checks
+        fail. ``False`` runs the search on every band (the reference it is compared with).
+        Needs the calibration's eye centre and orbit radius and the ``"orbit"`` model.
     """
 
     def __init__(self, setup: Setup, calibration: Calibration, method: str = "polynomial", *,
                  mapping: str = "eq1_25", detection: DetectionParams = DetectionParams(),
-                 matching: MatchParams = MatchParams(), prior: BandPrior | None = BandPrior()):
+                 matching: MatchParams = MatchParams(), prior: BandPrior | None = BandPrior(),
+                 cheap: bool = True):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         if not isinstance(calibration, Calibration):
@@ -254,6 +164,12 @@ class Tracker:
         self.n_lights = setup.lights.count
         self.prior = prior if calibration.has_orbit and matching.model == "orbit" else None
         self._orbit = self._problems.orbit if self.prior is not None else None
+        self._map = None if method == "geometric" else calibration.mappings[mapping]
+        self.follower = None
+        if cheap and self.prior is not None and (self._map is None or self._map.n_features == 3):
+            self.follower = BandFollower(self.matcher, FollowParams(min_matches=MIN_GLINTS))
+        #: Bands identified by the cheap path and by the hypothesis search (dense bands).
+        self.counts = {"cheap": 0, "search": 0}
         self.reset()
 
     def reset(self) -> None:
@@ -261,6 +177,7 @@ class Tracker:
         noise model (a frame that failed as a whole often means the exposure changed)."""
         self._lose()
         self._state = None
+        self._velocity = None
         self._detector.reset()
 
     def _lose(self) -> None:
@@ -296,14 +213,14 @@ class Tracker:
             reason = self._check(frame)
             if reason is not None:
                 self.reset()
-                return [_failed(frame_index, b.pulse_index, t, reason) for b, t in zip(bands, times)]
+                return [failed_sample(frame_index, b.pulse_index, t, reason) for b, t in zip(bands, times)]
             det = self._detector(frame, frame_index)
             det = det.select(~det.has(NO_BAND))
             return [self._band(det, b, t) for b, t in zip(bands, times)]
         except Exception as exc:  # the stream must survive any one frame; the reason is logged
             log.warning("frame %d: %s: %s", frame_index, type(exc).__name__, exc)
             self.reset()
-            return [_failed(frame_index, b.pulse_index, t, f"{INTERNAL_ERROR}:{type(exc).__name__}")
+            return [failed_sample(frame_index, b.pulse_index, t, f"{INTERNAL_ERROR}:{type(exc).__name__}")
                     for b, t in zip(bands, times)]
 
     def _check(self, frame) -> str | None:
@@ -322,7 +239,7 @@ class Tracker:
         g = det.of_strobe(j).glints_px
         rows = (band.first_row, band.last_row)
         if g.shape[0] < MIN_GLINTS:
-            sample = _failed(f, j, time_s, "match_too_few_glints", g)
+            sample = failed_sample(f, j, time_s, "match_too_few_glints", g)
         else:
             sample = self._dense(f, j, time_s, g, rows)
             if sample.ok or sample.reason not in _IDENTITY_FAILURES:
@@ -336,14 +253,21 @@ class Tracker:
         return sample
 
     def _dense(self, f, j, time_s, g, rows) -> GazeSample:
-        """A band with enough glints, identified and fitted on its own."""
+        """A band with enough glints, identified and fitted on its own: by the cheap path from
+        a recent sample where it accepts the band, else by the hypothesis search."""
+        if self.follower is not None:
+            sample = self._cheap(f, j, time_s, g, rows)
+            if sample is not None:
+                self.counts["cheap"] += 1
+                return sample
+        self.counts["search"] += 1
         match = self.matcher.match(g, rows=rows, prior_angles_rad=self._prior_angles)
         if not match.ok:
-            return _failed(f, j, time_s, f"match_{match.reason}", g)
+            return failed_sample(f, j, time_s, f"match_{match.reason}", g)
         used = match.matched
         lights = match.light_index[used]
         if lights.size < MIN_GLINTS:
-            return _failed(f, j, time_s, "too_few_glints", g[used], lights)
+            return failed_sample(f, j, time_s, "too_few_glints", g[used], lights)
         glints = self._glints(g[used], lights)
         if self.method == "polynomial":
             est = polynomial_gaze(self.setup, self.calibration, glints, mapping=self.mapping,
@@ -356,17 +280,70 @@ class Tracker:
         if reason == "ok" and self._implausible(time_s, match.angles_rad):
             reason = IMPLAUSIBLE_JUMP
         if reason != "ok":
-            return _failed(f, j, time_s, reason, g[used], lights)
+            return failed_sample(f, j, time_s, reason, g[used], lights)
         self._prior_angles = match.angles_rad
         self._start = est.resume_from
         if self._orbit is not None:
             mask = np.isfinite(glints[..., 0])
             cov = fit_covariance(self._orbit, match.angles_rad, mask, model="orbit",
                                  noise_px=self.prior.noise_px)[0]
-            self._state = (time_s, match.angles_rad.copy(), cov)
+            self._set_state(time_s, match.angles_rad, cov)
         return GazeSample(f, j, time_s, est.screen_xy_m[0].copy(), est.cornea_center_m[0].copy(),
                           g[used], lights, float(est.rms_px[0]), "ok",
                           match.confidence[used].copy())
+
+    def _cheap(self, f, j, time_s, g, rows) -> GazeSample | None:
+        """The cheap path's sample, or None where it declines (the search decides then).
+
+        Its prior is the previous band's sample, whose rotation the search would start from,
+        or, after bands without a sample, the last sample up to :data:`JUMP_AGE_S` old, after
+        which the search would run cold (its rivals then must lose without the prior's
+        term). Every outcome but an accepted band with an estimate below
+        :data:`MAX_RESIDUAL_PX` and no :data:`IMPLAUSIBLE_JUMP` goes to the search, which
+        gives those failures their reasons."""
+        fresh = self._prior_angles is not None
+        if fresh:
+            prior = self._prior_angles
+        elif self._state is not None and 0 <= time_s - self._state[0] <= JUMP_AGE_S:
+            # Carried on at the eye's last measured velocity: across the bands between two
+            # frames' glints (~11 ms in paper_sim) a saccade moves the eye by degrees.
+            t0, prior = self._state[:2]
+            if self._velocity is not None:
+                prior = prior + self._velocity * (time_s - t0)
+        else:
+            return None
+        got = self.follower.follow(g, rows, prior, prior_term=fresh)
+        if got is None:
+            return None
+        match, orbit = got.match, got.fit
+        used = match.matched
+        lights = match.light_index[used]
+        if self.method == "polynomial":
+            start = match.cornea_center_m if self._start is None else self._start
+            fit = fit_small(self._problems.center, g[used],
+                            self._problems.center.lights_world_m[lights], start, model="center",
+                            arrays=self.follower.arrays)
+            if not fit.ok:
+                return None
+            center, rms, resume = fit.x, fit.rms_px, fit.x
+            xy = self._map.predict(center[None])[0]
+        else:
+            center, rms, resume = match.cornea_center_m, orbit.rms_px, orbit.x
+            point, hits = screen_intersection(self.calibration.eye_center_m,
+                                              gaze_direction(orbit.x[0], orbit.x[1])[None],
+                                              self.setup.screen.z_m)
+            xy = point[0, :2] if hits[0] else np.full(2, np.nan)
+        if not (np.isfinite(xy).all() and rms <= MAX_RESIDUAL_PX) or \
+                self._implausible(time_s, match.angles_rad):
+            return None
+        self._prior_angles = match.angles_rad
+        self._start = resume.copy()
+        JtJ = orbit.JtJ
+        well = np.linalg.det(JtJ) > 1e-12 * JtJ[0, 0] * JtJ[1, 1]
+        cov = self.prior.noise_px ** 2 * np.linalg.inv(JtJ) if well else np.full((2, 2), np.inf)
+        self._set_state(time_s, match.angles_rad, cov)
+        return GazeSample(f, j, time_s, np.asarray(xy, dtype=np.float64).copy(), center.copy(),
+                          g[used], lights, float(rms), "ok", match.confidence[used].copy())
 
     def _assisted(self, f, j, time_s, g, rows, failed: GazeSample) -> GazeSample:
         """A sparse band (or one whose identification failed) with the previous sample's
@@ -392,15 +369,24 @@ class Tracker:
             est = geometric_gaze(self.setup, self.calibration, glints, **prior)
         reason = self._reason(est)
         if reason != "ok":
-            return _failed(f, j, time_s, PRIOR_PREFIX + reason, g[used], lights)
+            return failed_sample(f, j, time_s, PRIOR_PREFIX + reason, g[used], lights)
         angles = est.angles_rad[0]
         post = posterior_covariance(self._orbit, angles, np.isfinite(glints[..., 0]), cov,
                                     self.prior.noise_px)[0]
-        self._state = (time_s, angles.copy(), post)
+        self._set_state(time_s, angles, post)
         self._prior_angles = angles.copy()
         return GazeSample(f, j, time_s, est.screen_xy_m[0].copy(), est.cornea_center_m[0].copy(),
                           g[used], lights, float(est.rms_px[0]), "ok",
                           match.confidence[used].copy(), prior_assisted=True)
+
+    def _set_state(self, time_s: float, angles_rad, cov) -> None:
+        """Keep a sample's time, rotation and covariance (the prior of the next bands), and the
+        eye's velocity where the sample before it is at most :data:`VELOCITY_AGE_S` older."""
+        angles = np.array(angles_rad, dtype=np.float64)
+        self._velocity = None
+        if self._state is not None and 0 < time_s - self._state[0] <= VELOCITY_AGE_S:
+            self._velocity = (angles - self._state[1]) / (time_s - self._state[0])
+        self._state = (time_s, angles, cov)
 
     def _implausible(self, time_s: float, angles_rad) -> bool:
         """Whether the eye rotation ``angles_rad`` is further from the previous sample's than

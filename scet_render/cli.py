@@ -128,17 +128,26 @@ def cmd_calibrate(args) -> int:
 
 def cmd_track(args) -> int:
     from estimator.folders import load_calibration, track_folder
+    from estimator.live import track_following
     from estimator.scene import load_scene
 
     setup = load_scene(args.scene)
     cal = load_calibration(args.calibration)
     bar, update = progress_bar(0, "frame", "track")
     try:
-        summary = track_folder(args.dir, setup, cal, args.out, method=args.method, progress=update)
+        if args.follow:
+            summary = track_following(args.dir, setup, cal, args.out, method=args.method,
+                                      timeout_s=args.timeout, progress=update)
+        else:
+            summary = track_folder(args.dir, setup, cal, args.out, method=args.method,
+                                   progress=update)
     finally:
         bar.close()
     print(f"{len(summary.samples)} gaze samples from {summary.frames} frames "
           f"({summary.n_ok} estimated) written to {summary.path}")
+    print(f"throughput: {summary.samples_per_s:.0f} samples/s, "
+          f"{summary.frames / summary.seconds if summary.seconds > 0 else float('nan'):.1f} "
+          f"frames/s ({summary.seconds:.2f} s tracking, one core)")
     return 0
 
 
@@ -276,6 +285,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", type=Path, required=True, help="calibration file from scet calibrate")
     p.add_argument("--method", choices=("polynomial", "geometric"), default="polynomial")
     p.add_argument("--out", type=Path, required=True, help="samples CSV")
+    p.add_argument("--follow", action="store_true",
+                   help="track the frames as they are written (live): stop on an 'end' file, a "
+                        "dataset's last frame or --timeout seconds without a new frame")
+    p.add_argument("--timeout", type=float, default=5.0,
+                   help="with --follow: seconds without a new frame before stopping (default 5)")
     p.set_defaults(func=cmd_track)
 
     add_dataset_parsers(sub)

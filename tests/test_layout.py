@@ -30,8 +30,9 @@ LAYERS = {
         {"gaze"},
         {"glints", "capture"},
         {"matching"},
-        {"tracker"},
+        {"tracker", "samples"},
         {"folders"},
+        {"live"},
     ],
     "scet_render": [
         {"render", "motion"},

@@ -1,0 +1,235 @@
+"""One small cornea fit, warm-started: the tracker's cheap path fits the 5-15 glints of one
+band on the calibrated problem from the previous sample's estimate (``"orbit"``: 2 unknowns,
+``"center"``: 3), where :func:`estimator.cornea.fit_cornea`'s batched machinery costs more in
+numpy calls than the fit itself.
+
+Compiled with Numba (optional; :data:`estimator.geometry.compiled.ENABLED`): Levenberg-
+Marquardt on the glints of :func:`estimator.geometry.compiled.glints_one_pose`, the Jacobian
+by central differences (steps 1e-6 rad, 1e-8 m: ~1e-9 relative error in J, which moves only
+the path to the minimum, not the minimum, fixed by the residuals), stopped when a step is
+below 1e-12 m of cornea-centre motion. :func:`fit_cornea` stops at 1e-7 m steps with an error
+left of <= 4e-10 m (``solve._GN_STOP``), so both reach the same centre to ~1e-9 m, 1e-4 of the
+scatter 0.5 px of glint noise leaves (tested against it). Without Numba, :func:`fit_small`
+calls :func:`fit_cornea` on the band's lights.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import NamedTuple
+
+import numpy as np
+
+from ..geometry import compiled
+from .fit import fit_cornea
+from .problem import FitProblem
+from .solve import normal_equations
+
+#: Stopping step (m of cornea-centre motion; the orbit's angles count r_co per radian).
+_XTOL_M = 1e-12
+#: Central-difference steps of the Jacobian: rad (orbit), m (centre).
+_H_RAD, _H_M = 1e-6, 1e-8
+
+
+class SmallFit(NamedTuple):
+    """One band's fit: parameters x (p,) (Fick angles, rad, or the centre, m), the RMS glint
+    residual (px), JᵀJ (p, p) of the glint residuals at x (px² per unit²), iterations, and
+    whether it converged to finite parameters."""
+
+    x: np.ndarray
+    rms_px: float
+    JtJ: np.ndarray
+    iterations: int
+    ok: bool
+
+
+def _centre(model, x, ce, rco, out):
+    if model == 0:
+        out[0], out[1], out[2] = x[0], x[1], x[2]
+    else:
+        cp = math.cos(x[1])
+        out[0] = ce[0] + rco * (cp * math.sin(x[0]))
+        out[1] = ce[1] + rco * math.sin(x[1])
+        out[2] = ce[2] + rco * (-cp * math.cos(x[0]))
+
+
+def _residuals(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res):
+    R, O, intr, size = cam
+    _centre(model, x, ce, rco, c)
+    compiled.glints_kernel(R, O, intr, size, c, radius, lights, c, 0.0, False, g, vis)
+    cost = 0.0
+    for i in range(glints.shape[0]):
+        du, dv = g[i, 0] - glints[i, 0], g[i, 1] - glints[i, 1]
+        res[2 * i], res[2 * i + 1] = du, dv
+        cost += du * du + dv * dv
+    return cost
+
+
+def _solve(A, b, out):
+    """out = A⁻¹ b by Gaussian elimination with partial pivoting (p <= 3); False if singular."""
+    p = b.shape[0]
+    M = A.copy()
+    y = b.copy()
+    for k in range(p):
+        piv = k
+        for i in range(k + 1, p):
+            if abs(M[i, k]) > abs(M[piv, k]):
+                piv = i
+        if not abs(M[piv, k]) > 0:
+            return False
+        for j in range(p):
+            M[k, j], M[piv, j] = M[piv, j], M[k, j]
+        y[k], y[piv] = y[piv], y[k]
+        for i in range(k + 1, p):
+            f = M[i, k] / M[k, k]
+            for j in range(k, p):
+                M[i, j] -= f * M[k, j]
+            y[i] -= f * y[k]
+    for k in range(p - 1, -1, -1):
+        s = y[k]
+        for j in range(k + 1, p):
+            s -= M[k, j] * out[j]
+        out[k] = s / M[k, k]
+    return True
+
+
+def _lm(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_iter, xtol, h,
+        x, JtJ):
+    cam = (R, O, intr, size)
+    k, p = glints.shape[0], x0.shape[0]
+    g = np.empty((k, 2))
+    vis = np.empty(k, dtype=np.bool_)
+    c = np.empty(3)
+    res = np.empty(2 * k)
+    res_p = np.empty(2 * k)
+    res_m = np.empty(2 * k)
+    J = np.empty((2 * k, p))
+    Jtr = np.empty(p)
+    A = np.empty((p, p))
+    step = np.empty(p)
+    x_new = np.empty(p)
+    for j in range(p):
+        x[j] = x0[j]
+    cost = _residuals(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res)
+    lam = 1e-6
+    iters = 0
+    converged = False
+    for _ in range(max_iter):
+        if not math.isfinite(cost):
+            break
+        for j in range(p):
+            for q in range(p):
+                x_new[q] = x[q]
+            x_new[j] = x[j] + h
+            _residuals(cam, model, x_new, ce, rco, radius, lights, glints, g, vis, c, res_p)
+            x_new[j] = x[j] - h
+            _residuals(cam, model, x_new, ce, rco, radius, lights, glints, g, vis, c, res_m)
+            for i in range(2 * k):
+                J[i, j] = (res_p[i] - res_m[i]) / (2 * h)
+        for a in range(p):
+            s = 0.0
+            for i in range(2 * k):
+                s += J[i, a] * res[i]
+            Jtr[a] = s
+            for b in range(p):
+                s = 0.0
+                for i in range(2 * k):
+                    s += J[i, a] * J[i, b]
+                JtJ[a, b] = s
+        iters += 1
+        accepted = False
+        while lam <= 1e12:
+            for a in range(p):
+                for b in range(p):
+                    A[a, b] = JtJ[a, b]
+                A[a, a] += lam * max(JtJ[a, a], 1e-30)
+            if _solve(A, Jtr, step):
+                for j in range(p):
+                    x_new[j] = x[j] - step[j]
+                cost_new = _residuals(cam, model, x_new, ce, rco, radius, lights, glints, g,
+                                      vis, c, res_p)
+                if math.isfinite(cost_new) and cost_new <= cost:
+                    accepted = True
+                    break
+            lam *= 10
+        if not accepted:
+            converged = True  # no step lowers the cost: a minimum to machine precision
+            break
+        small = True
+        for j in range(p):
+            small = small and abs(step[j]) <= xtol * max(1.0, abs(x[j]))
+            x[j] = x_new[j]
+        for i in range(2 * k):
+            res[i] = res_p[i]
+        cost = cost_new
+        lam = max(lam / 10, 1e-12)
+        if small:
+            converged = True
+            break
+    return cost, iters, converged
+
+
+if compiled.ENABLED:
+    _jit = compiled.numba.njit(cache=True, nogil=True, error_model="numpy")
+    _centre = _jit(_centre)
+    _residuals = _jit(_residuals)
+    _solve = _jit(_solve)
+    _lm = _jit(_lm)
+
+
+def fit_small(problem: FitProblem, glints_px, lights_world_m, x0, *, model: str,
+              max_iter: int = 50, arrays=None) -> SmallFit:
+    """Fit one sample's identified glints (k, 2) of lights (k, 3) from ``x0``.
+
+    Parameters
+    ----------
+    problem : FitProblem
+        The calibrated problem (camera, r_c and, for ``"orbit"``, c_e and r_co); its lights
+        are replaced by ``lights_world_m``.
+    glints_px : (k, 2) float
+    lights_world_m : (k, 3) float
+    x0 : (p,) float
+        Start: Fick (yaw, pitch) rad for ``"orbit"``, the centre (m) for ``"center"``.
+    model : {"orbit", "center"}
+    arrays : tuple, optional
+        :func:`estimator.geometry.compiled.camera_arrays` of the problem's camera.
+    """
+    if model not in ("orbit", "center"):
+        raise ValueError(f"model must be 'orbit' or 'center', got {model!r}")
+    p = 2 if model == "orbit" else 3
+    g = np.ascontiguousarray(glints_px, dtype=np.float64).reshape(-1, 2)
+    L = np.ascontiguousarray(lights_world_m, dtype=np.float64).reshape(-1, 3)
+    x0 = np.asarray(x0, dtype=np.float64).reshape(p)
+    if g.shape[0] != L.shape[0] or 2 * g.shape[0] < p:
+        raise ValueError(f"need as many glints as lights and >= {p} coordinates, got "
+                         f"{g.shape[0]} glints and {L.shape[0]} lights")
+    if not compiled.ENABLED:
+        return _fit_numpy(problem, g, L, x0, model, max_iter)
+    if model == "orbit":
+        ce, rco, h = problem.eye_center_m, float(problem.orbit_radius_m), _H_RAD
+        xtol = _XTOL_M / rco
+    else:
+        ce, rco, h, xtol = np.zeros(3), 0.0, _H_M, _XTOL_M
+    R, O, intr, size = compiled.camera_arrays(problem.camera) if arrays is None else arrays
+    x = np.empty(p)
+    JtJ = np.zeros((p, p))
+    cost, iters, converged = _lm(R, O, intr, size, 1 if model == "orbit" else 0, x0,
+                                 np.asarray(ce, dtype=np.float64), rco,
+                                 problem.cornea_radius_m, L, g, max_iter, xtol, h, x, JtJ)
+    ok = bool(converged and np.isfinite(x).all() and math.isfinite(cost))
+    return SmallFit(x, math.sqrt(max(cost, 0.0) / g.shape[0]) if ok else math.nan, JtJ,
+                    int(iters), ok)
+
+
+def _fit_numpy(problem, g, L, x0, model, max_iter) -> SmallFit:
+    """:func:`fit_small` through :func:`fit_cornea` (no Numba)."""
+    sub = replace(problem, lights_world_m=L)
+    fit = fit_cornea(sub, g[None], None, x0, model=model, max_iter=max_iter)
+    x = (fit.angles_rad if model == "orbit" else fit.center_m)[0]
+    ok = bool(fit.ok[0] and np.isfinite(x).all())
+    JtJ = np.full((x0.size, x0.size), np.nan)
+    if ok:
+        _, info, _ = normal_equations(model, sub, x[None], g[None], np.ones((1, g.shape[0]), bool))
+        JtJ = info[0]
+    return SmallFit(x.copy(), float(fit.rms_px[0]), JtJ, int(fit.iterations[0]), ok)

@@ -1,0 +1,218 @@
+"""The cheap path of a stream: a band identified from a recent sample's eye rotation with one
+prediction, one gated assignment and one small fit, and checked so that it never claims what
+the hypothesis search would not.
+
+:meth:`GlintMatcher.match` with a prior refines the prior, the best grid poses within
+``prior_window_deg`` of it and the chain shifted by ±1, ±2 lights (module docstring of
+:mod:`estimator.matching.matcher`): ~15 ms a band in numpy. :class:`BandFollower` does what
+wins there in the common case, once:
+
+1. predict every light's glint at the prior (one projection,
+   :func:`estimator.geometry.compiled.glints_one_pose`); candidates inside the band's rows;
+2. assign the detections to them, gated at ``prior_gate_px`` (the matcher's gated optimal
+   assignment);
+3. fit the orbit to the matched glints from the prior (:func:`estimator.cornea.fit_small`),
+   re-predict, re-assign at ``gate_px`` with the lights' order enforced (the matcher's final
+   assignment), refit while the matches change (at most :data:`MAX_ROUNDS` rounds).
+
+It then verifies, and returns None (the caller runs the search) unless all of these hold:
+
+- at least ``min_matches`` matched detections, and no more unmatched than matched (the
+  search's own test for a prior that explains the band);
+- the fitted rotation lies within ``max_shift_deg`` of the prior: the eye has not turned by
+  anything near the ~2° between neighbouring glints' identities, so the prior's basin is the
+  one the search would start from;
+- every rival the search refines beside it, the chain shifted by ±1 and ±2 lights along its
+  arcs, scores worse by at least ``rival_margin`` (the search's score: residuals, unmatched
+  detections, predicted glints missing well inside the band, distance from the prior), each
+  rival refitted to first order about the fitted pose (its Jacobian by central differences of
+  one more projection per angle).
+
+The search would call the band "ambiguous" below its ``min_margin`` (6); the rival margin
+asks for twice that, so a band near the search's line falls back and gets the search's answer.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..cornea import SmallFit, fit_small
+from ..geometry import camera_arrays, glints_one_pose
+from .matcher import GlintMatcher
+from .model import _Hypothesis
+from .params import GlintMatch
+
+#: Most assign-fit rounds before the path gives up (the assignment settles after 1-2).
+MAX_ROUNDS = 3
+
+
+@dataclass(frozen=True, slots=True)
+class FollowParams:
+    """Settings of :class:`BandFollower`.
+
+    Attributes
+    ----------
+    min_matches : int
+        Fewest matched detections (the tracker's :data:`estimator.tracker.MIN_GLINTS`).
+    max_shift_deg : float
+        Largest distance (largest axis) of the fitted rotation from the prior: half the ~2°
+        between neighbouring glints' identities along an arc in ``paper_sim``; the eye turns
+        0.6° in the 1 ms between bands at 600°/s.
+    rival_margin : float
+        Score by which every shifted chain must lose: twice the search's ``min_margin``.
+    """
+
+    min_matches: int = 5
+    max_shift_deg: float = 1.0
+    rival_margin: float = 12.0
+
+
+@dataclass(frozen=True, slots=True)
+class Followed:
+    """A band the cheap path identified: the match (as :meth:`GlintMatcher.match` gives it)
+    and the orbit fit of its matched glints (its JᵀJ sizes the sample's covariance)."""
+
+    match: GlintMatch
+    fit: SmallFit
+
+
+class BandFollower:
+    """The cheap path (module docstring) on a :class:`GlintMatcher`'s setup, calibrated eye,
+    lights and parameters ("orbit" model only)."""
+
+    def __init__(self, matcher: GlintMatcher, params: FollowParams = FollowParams()):
+        if matcher.params.model != "orbit":
+            raise ValueError("the cheap path needs the matcher's 'orbit' model")
+        self.matcher, self.params = matcher, params
+        #: The camera as the compiled kernels take it (:func:`estimator.geometry.camera_arrays`).
+        self.arrays = camera_arrays(matcher.setup.camera)
+        self._lights = np.ascontiguousarray(matcher.lights_world_m, dtype=np.float64)
+        # Each light's neighbour -2, -1, +1, +2 places along its own arc (-1 off the arc).
+        every = np.arange(self._lights.shape[0])
+        self._shifted = np.stack([matcher._shift(every, s) for s in (-2, -1, 1, 2)], axis=1)
+
+    def predict(self, angles_rad):
+        """Glints (n, 2) and visibility (n,) of every light at one rotation (2,)."""
+        m = self.matcher
+        yaw, pitch = float(angles_rad[0]), float(angles_rad[1])
+        cp = math.cos(pitch)
+        # gaze_direction and Eye.cornea_center of one rotation, without numpy's per-call cost.
+        axis = np.array([cp * math.sin(yaw), math.sin(pitch), -cp * math.cos(yaw)])
+        center = m.eye.rotation_center_m + m.eye.cornea_offset_m * axis
+        return glints_one_pose(m.setup.camera, center, m.eye.cornea_radius_m, self._lights,
+                               cornea_axis=axis, cap_cos_min=m.eye.cap_cos_min,
+                               arrays=self.arrays)
+
+    def follow(self, glints_px, rows, prior_angles_rad, *, prior_term: bool = True
+               ) -> Followed | None:
+        """The band's identities from the prior ``prior_angles_rad`` (2,), or None where the
+        checks fail (the caller runs :meth:`GlintMatcher.match`).
+
+        ``prior_term``: the scores count the distance from the prior, as the search does with
+        a prior (the previous band's sample). Without it (an older sample, after which the
+        tracker runs the cold search, whose scores have no prior) the rivals must lose by
+        their glints alone."""
+        m, p, fp = self.matcher, self.matcher.params, self.params
+        g, lo, hi = m._inputs(glints_px, rows)
+        prior = np.asarray(prior_angles_rad, dtype=np.float64).reshape(2)
+        if g.shape[0] < fp.min_matches:
+            return None
+        pred, cand, _ = self._candidates(prior, lo, hi)
+        assign, _ = m._assign(g, pred, cand, p.prior_gate_px)
+        x, fit, prev = prior, None, None
+        for _ in range(MAX_ROUNDS):
+            used = assign >= 0
+            if used.sum() < fp.min_matches:
+                return None
+            fit = fit_small(m.problem, g[used], m.lights_world_m[assign[used]], x,
+                            model="orbit", arrays=self.arrays)
+            if not fit.ok:
+                return None
+            x, prev = fit.x, assign
+            pred, cand, inside = self._candidates(x, lo, hi)
+            assign, dist = m._final_assign(g, pred, cand)
+            if np.array_equal(assign, prev):
+                break
+        else:
+            return None
+        matched = assign >= 0
+        n = int(matched.sum())
+        if n < fp.min_matches or n < 0.5 * g.shape[0]:
+            return None
+        if np.abs(x - prior).max() > math.radians(fp.max_shift_deg):
+            return None
+        weight = 1.0 if prior_term else 0.0
+        score = self._score(g, assign, dist, inside, x, prior, weight)
+        margin = self._rival_margin(g, assign, x, prior, lo, hi, score, weight)
+        if not margin >= fp.rival_margin:
+            return None
+        h = _Hypothesis(x.copy(), assign, dist, pred, cand, score, fit.iterations, True)
+        match = m._result(g, h, margin, p.min_matches)
+        return Followed(match, fit) if match.ok else None
+
+    def _candidates(self, angles, lo, hi):
+        """Predicted glints (n, 2), candidates and glints well inside the band (n,)."""
+        pred, vis = self.predict(angles)
+        v = pred[:, 1]
+        b = self.matcher.params.band_margin_px
+        return pred, vis & (v >= lo - b) & (v <= hi + b), vis & (v >= lo + b) & (v <= hi - b)
+
+    def _score(self, g, assign, dist, inside, x, prior, weight) -> float:
+        """The search's score of an assignment at rotation x (its ``_refine`` score plus the
+        prior's squared distance in ``prior_sigma_deg``)."""
+        p = self.matcher.params
+        matched = assign >= 0
+        detected = np.zeros(inside.shape[0], dtype=bool)
+        detected[assign[matched]] = True
+        d = (x - prior) / math.radians(p.prior_sigma_deg)
+        return float(np.sum(dist[matched] ** 2) / p.noise_px ** 2
+                     + (~matched).sum() * p.unmatched_cost
+                     + p.missing_cost * (inside & ~detected).sum() + weight * (d @ d))
+
+    def _rival_margin(self, g, assign, x, prior, lo, hi, score, weight) -> float:
+        """Smallest score lead over the chains shifted by ±1, ±2 lights, each refitted to
+        first order about x (linearised glints pred + J δ, the four rivals at once); inf
+        without a rival, -inf where the linearisation cannot place one (the search decides)."""
+        m, p = self.matcher, self.matcher.params
+        h = 1e-6
+        pred, vis = self.predict(x)
+        dy = (self.predict((x[0] + h, x[1]))[0] - self.predict((x[0] - h, x[1]))[0]) / (2 * h)
+        dp = (self.predict((x[0], x[1] + h))[0] - self.predict((x[0], x[1] - h))[0]) / (2 * h)
+        J = np.stack([dy, dp], axis=-1)  # (n, 2, 2) px / rad
+        finite = vis & np.isfinite(J).all(axis=(1, 2)) & np.isfinite(pred).all(axis=1)
+        A = np.where(assign >= 0, self._shifted[np.maximum(assign, 0)].T, -1)  # (4, k) lights
+        use = A >= 0
+        use[use] = finite[A[use]]
+        use &= use.any(axis=1, keepdims=True)
+        rivals = np.flatnonzero(use.any(axis=1))
+        if rivals.size == 0:
+            return math.inf
+        A, use = A[rivals], use[rivals]
+        lights = np.where(use, A, 0)
+        Jr = np.where(use[..., None, None], J[lights], 0.0)  # (r, k, 2, 2)
+        res = np.where(use[..., None], g[None] - pred[lights], 0.0)  # (r, k, 2)
+        AtA = np.einsum("rkia,rkib->rab", Jr, Jr)
+        Atr = np.einsum("rkia,rki->ra", Jr, res)
+        det = AtA[:, 0, 0] * AtA[:, 1, 1] - AtA[:, 0, 1] * AtA[:, 1, 0]
+        if not (np.abs(det) > 1e-12 * AtA[:, 0, 0] * AtA[:, 1, 1]).all():
+            return -math.inf
+        delta = np.stack([AtA[:, 1, 1] * Atr[:, 0] - AtA[:, 0, 1] * Atr[:, 1],
+                          AtA[:, 0, 0] * Atr[:, 1] - AtA[:, 1, 0] * Atr[:, 0]], -1) / det[:, None]
+        at = pred[None] + np.einsum("nia,ra->rni", J, delta)  # (r, n, 2) glints at each rival
+        d2 = ((g[None] - np.take_along_axis(at, lights[..., None], axis=1)) ** 2).sum(-1)
+        keep = use & (d2 <= p.gate_px ** 2)
+        v = at[..., 1]
+        b = p.band_margin_px
+        inside = finite[None] & (v >= lo + b) & (v <= hi - b)
+        detected = np.zeros(inside.shape, dtype=bool)
+        r_idx = np.broadcast_to(np.arange(rivals.size)[:, None], keep.shape)
+        detected[r_idx[keep], lights[keep]] = True
+        dprior = (x[None] + delta - prior) / math.radians(p.prior_sigma_deg)
+        rival = (np.where(keep, d2, 0.0).sum(axis=1) / p.noise_px ** 2
+                 + (g.shape[0] - keep.sum(axis=1)) * p.unmatched_cost
+                 + p.missing_cost * (inside & ~detected).sum(axis=1)
+                 + weight * (dprior ** 2).sum(axis=1))
+        return float(rival.min() - score)
