@@ -21,6 +21,7 @@ from .score import (
     Score,
     ScoreRow,
     band_position,
+    error_statistics,
     reasons_table,
     score_samples,
     score_table,
@@ -32,5 +33,6 @@ __all__ = [
     "IDENTITY_RADIUS_PX", "ValidationConfig", "QUICK", "FULL", "ValidationRow",
     "ValidationResult", "SIM_REPEATS", "table_markdown", "prior_table_markdown",
     "geometric_from", "run_validation", "POSITIONS", "true_gaze_points", "band_position",
+    "error_statistics",
     "ScoreRow", "Score", "score_samples", "score_table", "reasons_table", "write_score_report"
 ]

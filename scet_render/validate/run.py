@@ -43,7 +43,7 @@ from estimator.folders import (
     write_samples_csv,
 )
 from estimator.gaze import calibrated_problems, geometric_gaze, polynomial_gaze, screen_intersection
-from estimator.metrics import angular_error_deg, summarize_errors
+from estimator.metrics import angular_error_deg
 from estimator.scene import load_scene
 from estimator.setup import Setup
 from estimator.tracker import MAX_RESIDUAL_PX, RESIDUAL_TOO_LARGE
@@ -59,7 +59,7 @@ from .config import (
     ValidationRow,
 )
 from .report import _write_report
-from .score import true_gaze_points
+from .score import error_statistics, true_gaze_points
 
 # --------------------------------------------------------------------------- comparison
 
@@ -87,12 +87,7 @@ def _identities(samples, labels_by_key, radius_px: float):
 
 
 def _row(source, ppf, method, err, identity) -> ValidationRow:
-    s = summarize_errors(err)
-    fin = err[np.isfinite(err)]
-    return ValidationRow(source, ppf, method, s.n, 1.0 - s.n_nan / max(s.n, 1), s.mean_deg,
-                         s.sd_deg, float(np.median(fin)) if fin.size else math.nan,
-                         float(np.percentile(fin, 95)) if fin.size else math.nan, s.robustness,
-                         identity)
+    return ValidationRow(source, ppf, method, *error_statistics(err), identity)
 
 
 def _simulate(setup, calibration, method, mapping, samples, gaze_pts, noise_px, seed,

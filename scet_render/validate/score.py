@@ -52,6 +52,18 @@ def band_position(label, visible_lines: int) -> str:
     return POSITIONS[min(2, max(0, int(3 * centre // visible_lines)))]
 
 
+def error_statistics(errors_deg) -> tuple:
+    """(samples, valid share, mean, SD, median, 95th percentile, robustness) of (m,) angular
+    errors in degrees, NaN where a sample failed: the columns of the validation's and the
+    score's tables (:func:`estimator.metrics.summarize_errors` and the order statistics)."""
+    err = np.asarray(errors_deg, dtype=np.float64)
+    s = summarize_errors(err)
+    fin = err[np.isfinite(err)]
+    return (s.n, 1.0 - s.n_nan / max(s.n, 1), s.mean_deg, s.sd_deg,
+            float(np.median(fin)) if fin.size else math.nan,
+            float(np.percentile(fin, 95)) if fin.size else math.nan, s.robustness)
+
+
 @dataclass(frozen=True, slots=True)
 class ScoreRow:
     """Accuracy and robustness of one method at one band position (``"all"``: every band)."""
@@ -68,12 +80,7 @@ class ScoreRow:
 
     @classmethod
     def from_errors(cls, method: str, position: str, err) -> "ScoreRow":
-        err = np.asarray(err, dtype=np.float64)
-        s = summarize_errors(err)
-        fin = err[np.isfinite(err)]
-        return cls(method, position, s.n, 1.0 - s.n_nan / max(s.n, 1), s.mean_deg, s.sd_deg,
-                   float(np.median(fin)) if fin.size else math.nan,
-                   float(np.percentile(fin, 95)) if fin.size else math.nan, s.robustness)
+        return cls(method, position, *error_statistics(err))
 
 
 @dataclass(frozen=True, slots=True)
