@@ -6,9 +6,13 @@ detector, as on the Pi), on banded frames of the prototype scene drawn analytica
 """
 
 import os
+import sys
 import time
+from pathlib import Path
 
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+# The analytic banded frames are the tests' (tests/estimator/test_tracker.draw_frame).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
