@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import as_points
+from .geometry import as_points, project_glints
 
 #: Böhme et al. (2008) eye: corneal radius, rotation-centre-to-cornea-centre distance and
 #: limbus depth behind the apex, all in metres. Other corneal radii scale the last two.
@@ -104,6 +104,22 @@ class Eye:
         """(..., 3) corneal apex for Fick angles."""
         d = gaze_direction(yaw_rad, pitch_rad)
         return self.rotation_center_m + (self.cornea_offset_m + self.cornea_radius_m) * d
+
+    def glints(self, camera, lights_world_m, yaw_rad, pitch_rad, *,
+               cornea_radius_m: float | None = None):
+        """Noise-free glints of this eye rotated to (yaw, pitch) (Fick angles, any batch shape):
+        the closed-form projection (:func:`estimator.geometry.project_glints`) with the corneal
+        cap test. ``cornea_radius_m`` overrides r_c (a calibrated or perturbed eye).
+
+        Returns ``(glints_px (..., n, 2), visible (..., n), cornea_center_m (..., 3))``.
+        """
+        r_c = self.cornea_radius_m if cornea_radius_m is None else float(cornea_radius_m)
+        center = self.cornea_center(yaw_rad, pitch_rad)
+        glints, visible = project_glints(camera, center, r_c,
+                                         np.asarray(lights_world_m, dtype=np.float64),
+                                         cornea_axis=gaze_direction(yaw_rad, pitch_rad),
+                                         cap_cos_min=self.cap_cos_min)
+        return glints, visible, center
 
     def angles_toward(self, targets_m) -> tuple[np.ndarray, np.ndarray]:
         """Fick angles (radians) that point the optical axis at (..., 3) world targets."""

@@ -15,9 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from estimator.eye import gaze_direction
 from estimator.formats import GLINTS_FORMAT, GLINTS_VERSION, atomic_file
-from estimator.geometry import project_glints
 from estimator.setup import Setup
 
 SIM_FORMAT, SIM_VERSION = GLINTS_FORMAT, GLINTS_VERSION
@@ -71,14 +69,9 @@ def ground_truth_glints(setup: Setup, yaw_rad, pitch_rad, *, lights_world_m=None
 
     Returns ``(glints_px (..., n, 2), visible (..., n), cornea_center_m (..., 3))``.
     """
-    eye = setup.eye
-    lights = setup.lights_world_m if lights_world_m is None else np.asarray(lights_world_m, float)
-    r_c = eye.cornea_radius_m if cornea_radius_m is None else float(cornea_radius_m)
-    center = eye.cornea_center(yaw_rad, pitch_rad)
-    axis = gaze_direction(yaw_rad, pitch_rad)
-    glints, visible = project_glints(setup.camera, center, r_c, lights,
-                                     cornea_axis=axis, cap_cos_min=eye.cap_cos_min)
-    return glints, visible, center
+    lights = setup.lights_world_m if lights_world_m is None else lights_world_m
+    return setup.eye.glints(setup.camera, lights, yaw_rad, pitch_rad,
+                            cornea_radius_m=cornea_radius_m)
 
 
 def feature_noise(shape, noise_px: float, model: str, rng: np.random.Generator) -> np.ndarray:
