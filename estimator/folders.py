@@ -20,236 +20,88 @@ plus the ``prior`` column) atomically; :func:`read_samples_csv` reads both versi
 
 from __future__ import annotations
 
-import json
 import logging
 import math
-import re
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterator
 
-import cv2
 import numpy as np
 
 from .banding import NO_PULSE, row_strobe
-from .calibration import Calibration, calibrate_joint, calibration_warnings, fit_gaze_mapping
-from .capture import CaptureError, CaptureFolder, is_capture_folder
-from .formats import (
-    FRAMES_DIR,
-    LABELS_NAME,
-    MANIFEST_NAME,
-    TIMING_FORMAT,
-    TIMING_NAME,
-    TIMING_VERSION,
-    atomic_write,
-    check_format,
-    read_json,
+from .calibration import (
+    MAPPING_TERMS,
+    Calibration,
+    calibrate_joint,
+    calibration_warnings,
+    fit_gaze_mapping,
 )
+from .capture import is_capture_folder
+from .checks import load_json
+from .formats import atomic_write
 from .gaze import fit_cornea_centers
 from .glints import NO_BAND, detect_glints
+from .inputs import (
+    BAD_TIMESTAMP,
+    FolderTiming,
+    frame_path,
+    frame_reason,
+    input_files,
+    open_capture,
+    read_frame,
+    read_targets,
+    read_timing,
+    refuse_overwriting_inputs,
+    timing_document,
+)
 from .matching import GlintMatcher
-from .setup import Setup
 from .samples import SAMPLE_COLUMNS, read_samples_csv, samples_csv, write_samples_csv  # noqa: F401
-from .tracker import MIN_GLINTS, MISSING_FRAME, UNREADABLE_FRAME, Tracker, TrackerInputError
+from .setup import Setup
+from .tracker import INTERNAL_ERROR, MIN_GLINTS, Tracker, TrackerInputError
 
 log = logging.getLogger(__name__)
 
-
-_FRAME_NAME = re.compile(r"^(\d+)\.png$")
-
-@dataclass(frozen=True, slots=True)
-class FolderTiming:
-    """A folder's timing sidecar.
-
-    Attributes
-    ----------
-    frame_start_s : dict[int, float]
-        Frame index -> frame start t0_f (s).
-    exposure_s : float or None
-    strobe : dict or None
-        Strobe fields the frames were taken with (overriding the scene's).
-    source : Path
-        The file the timing was read from.
-    """
-
-    frame_start_s: dict
-    exposure_s: float | None
-    strobe: dict | None
-    source: Path
-
-    def apply(self, setup: Setup) -> Setup:
-        """``setup`` with the sidecar's exposure and strobe, where it gives them."""
-        sensor = setup.sensor if self.exposure_s is None else replace(setup.sensor,
-                                                                      exposure_s=self.exposure_s)
-        strobe = setup.strobe if self.strobe is None else replace(setup.strobe, **self.strobe)
-        return replace(setup, sensor=sensor, strobe=strobe)
+__all__ = ["FolderTiming", "timing_document", "read_timing", "frame_path", "read_frame",
+           "read_targets", "iter_folder", "CalibrationGlints", "SINGLE_PULSE_MIN_WEIGHT",
+           "MAKE_CALIBRATION_FRAMES", "check_single_pulse", "calibration_glints",
+           "CALIBRATION_MAPPINGS", "fit_supported_mappings", "calibrate_from_folder",
+           "save_calibration", "load_calibration", "SAMPLE_COLUMNS", "TrackSummary",
+           "track_folder", "samples_csv", "write_samples_csv", "read_samples_csv",
+           "BAD_TIMESTAMP"]
 
 
-def timing_document(frame_start_s: dict, *, exposure_s: float | None = None,
-                    strobe=None) -> str:
-    """The text of a timing sidecar (``strobe``: a :class:`~estimator.setup.Strobe` or None)."""
-    doc = {"format": TIMING_FORMAT, "version": TIMING_VERSION,
-           "frames": {str(int(k)): float(v) for k, v in sorted(frame_start_s.items())}}
-    if exposure_s is not None:
-        doc["exposure_s"] = float(exposure_s)
-    if strobe is not None:
-        doc["strobe"] = {k: (int if k == "pulses_per_frame" else float)(getattr(strobe, k))
-                         for k in ("pulses_per_frame", "pulse_s", "period_s", "phase_s")}
-    return json.dumps(doc, indent=1) + "\n"
-
-
-def read_timing(folder, setup: Setup) -> FolderTiming:
-    """The timing of a frames folder: ``timing.json``, or a rendered dataset's manifest.
-
-    Raises
-    ------
-    TrackerInputError
-        Neither file, or a malformed one (the message names the file and key).
-    """
-    folder = Path(folder)
-    if is_capture_folder(folder):
-        return _capture_timing(_open_capture(folder, setup))
-    path = folder / TIMING_NAME
-    if path.is_file():
-        return _parse_timing(path)
-    manifest = folder / MANIFEST_NAME
-    if manifest.is_file():
-        data = read_json(manifest, TrackerInputError)
-        try:
-            frames = int(data["frames"])
-            width, height = int(data["image"]["width_px"]), int(data["image"]["height_px"])
-        except (KeyError, TypeError, ValueError) as exc:
-            raise TrackerInputError(f"{manifest}: malformed dataset manifest ({exc!r})") from None
-        want = (setup.camera.width_px, setup.camera.height_px)
-        if (width, height) != want:
-            raise TrackerInputError(f"{manifest}: frames are {width}x{height} px, the setup's "
-                                    f"camera is {want[0]}x{want[1]}")
-        dt = setup.sensor.frame_period_s
-        return FolderTiming({f: f * dt for f in range(frames)}, None, None, manifest)
-    raise TrackerInputError(f"{folder}: no {TIMING_NAME} (frame index -> frame start time) and "
-                            f"no {MANIFEST_NAME}; cannot time the frames")
-
-
-def _open_capture(folder: Path, setup: Setup) -> CaptureFolder:
-    try:
-        return CaptureFolder(folder, black_level_out_dn=setup.sensor.black_level_dn,
-                             size_px=(setup.camera.width_px, setup.camera.height_px))
-    except CaptureError as exc:
-        raise TrackerInputError(str(exc)) from None
-
-
-def _capture_timing(cap: CaptureFolder) -> FolderTiming:
-    """A capture's frame starts (SensorTimestamp, the first row's readout on the Pi), and
-    the exposure and strobe model it records (``exposure_s``, ``strobe_model``)."""
-    starts = {f: start for f, (_, _, start, _) in cap.index.items()}
-    starts.update({f: f * cap.frame_period_s + cap.timestamp_offset_s for f in cap.dropped})
-    exposure = cap.header.get("exposure_s")
-    strobe = cap.header.get("strobe_model")
-    return FolderTiming(dict(sorted(starts.items())),
-                        float(exposure) if isinstance(exposure, (int, float)) else None,
-                        strobe if isinstance(strobe, dict) else None, cap.path / "capture.json")
-
-
-def _parse_timing(path: Path) -> FolderTiming:
-    data = read_json(path, TrackerInputError)
-    check_format(data, path, TIMING_FORMAT, TIMING_VERSION, TrackerInputError)
-    frames = data.get("frames")
-    if not isinstance(frames, dict) or not frames:
-        raise TrackerInputError(f"{path}: key 'frames' must be a non-empty object "
-                                "{frame index: frame start time in s}")
-    out = {}
-    for k, v in frames.items():
-        if not re.fullmatch(r"\d+", str(k)) or isinstance(v, bool) or not isinstance(v, (int, float)) \
-                or not math.isfinite(v):
-            raise TrackerInputError(f"{path}: key 'frames': entry {k!r}: {v!r} is not "
-                                    "<frame index>: <finite time in s>")
-        out[int(k)] = float(v)
-    exposure = data.get("exposure_s")
-    if exposure is not None and (isinstance(exposure, bool) or not isinstance(exposure, (int, float))
-                                 or not exposure > 0):
-        raise TrackerInputError(f"{path}: key 'exposure_s' must be a positive number, got {exposure!r}")
-    strobe = data.get("strobe")
-    if strobe is not None:
-        keys = {"pulses_per_frame", "pulse_s", "period_s", "phase_s"}
-        if not isinstance(strobe, dict) or not set(strobe) <= keys or not all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) for v in strobe.values()):
-            raise TrackerInputError(f"{path}: key 'strobe' must map some of {sorted(keys)} to numbers")
-    return FolderTiming(out, None if exposure is None else float(exposure), strobe, path)
-
-
-def frame_path(folder, frame_index: int) -> Path:
-    """Where frame ``frame_index`` of a folder lives (``frames/`` if the folder has one)."""
-    folder = Path(folder)
-    sub = folder / FRAMES_DIR
-    return (sub if sub.is_dir() else folder) / f"{int(frame_index):06d}.png"
-
-
-def read_frame(path) -> np.ndarray:
-    """A grey 8- or 16-bit PNG frame as (H, W) uint8 or uint16.
-
-    Raises
-    ------
-    TrackerInputError
-        Missing, corrupt or truncated file, or not a single-channel image.
-    """
-    path = Path(path)
-    try:
-        data = np.frombuffer(path.read_bytes(), dtype=np.uint8)
-    except OSError as exc:
-        raise TrackerInputError(f"{path}: cannot read the frame ({exc.strerror})") from None
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    if img is None:
-        raise TrackerInputError(f"{path}: not a readable PNG (corrupt or truncated)")
-    if img.ndim != 2:
-        raise TrackerInputError(f"{path}: expected a single-channel frame, got shape {img.shape}")
-    return img
-
-
-def iter_folder(folder, setup: Setup) -> Iterator[tuple[int, float, np.ndarray | None, str | None]]:
+def iter_folder(folder, setup: Setup, timing: FolderTiming | None = None
+                ) -> Iterator[tuple[int, float, np.ndarray | None, str | None]]:
     """(frame index, frame start s, frame or None, error message or None) for every frame
-    of the timing sidecar, in index order. A missing or unreadable frame yields None and why.
+    of the timing sidecar, in index order. A missing or unreadable frame, one whose PNG header
+    gives another size than the scene's camera, or whose time stamp the sidecar flags, yields
+    None and why (:func:`estimator.inputs.frame_reason` gives the samples' reason code).
 
     A capture folder (``capture.json``, :mod:`estimator.capture`) gives every frame slot from
     its SensorTimestamps; dropped frames and bad ones come as None with the reason."""
     if is_capture_folder(folder):
-        for fr in _open_capture(folder, setup).frames():
+        for fr in open_capture(Path(folder), setup).frames():
             yield fr.index, fr.start_s, fr.image, fr.reason
         return
-    timing = read_timing(folder, setup)
+    timing = read_timing(folder, setup) if timing is None else timing
+    size = (setup.camera.width_px, setup.camera.height_px)
     for f in sorted(timing.frame_start_s):
+        t0 = timing.frame_start_s[f]
+        if f in timing.problems:
+            yield f, t0, None, timing.problems[f]
+            continue
         path = frame_path(folder, f)
         if not path.is_file():
-            yield f, timing.frame_start_s[f], None, f"{path}: missing"
+            yield f, t0, None, f"{path}: missing"
             continue
         try:
-            yield f, timing.frame_start_s[f], read_frame(path), None
+            yield f, t0, read_frame(path, size), None
         except TrackerInputError as exc:
-            yield f, timing.frame_start_s[f], None, str(exc)
+            yield f, t0, None, str(exc)
 
 
 # --------------------------------------------------------------------------- calibration
-
-
-def read_targets(folder) -> dict:
-    """Frame index -> fixated target (3,) m, from a folder's ``labels.jsonl`` (``frame`` and
-    ``target_m`` of each line)."""
-    path = Path(folder) / LABELS_NAME
-    out = {}
-    try:
-        lines = path.read_text(encoding="utf-8").splitlines()
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TrackerInputError(f"{path}: cannot read the calibration targets ({exc})") from None
-    for number, line in enumerate(lines, start=1):
-        try:
-            d = json.loads(line)
-            t = np.asarray(d["target_m"], dtype=np.float64).reshape(3)
-            out.setdefault(int(d["frame"]), t)
-        except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
-            raise TrackerInputError(f"{path}, line {number}: malformed label ({exc!r})") from None
-    if not out:
-        raise TrackerInputError(f"{path}: no calibration targets")
-    return out
 
 
 @dataclass(frozen=True, slots=True)
@@ -358,12 +210,38 @@ def calibrate_from_folder(folder, setup: Setup) -> Calibration:
                                       frames_total=total))
     centers = fit_cornea_centers(cal_setup, cal, cg.glints_px, mask)
     ok = centers.ok
-    m = int(ok.sum())
-    maps = {f"eq1_{m}": fit_gaze_mapping(centers.center_m[ok], cg.targets_m[ok], "eq1",
-                                         degenerate="min_norm"),
-            f"quadratic_{m}": fit_gaze_mapping(centers.center_m[ok], cg.targets_m[ok],
-                                               "quadratic", degenerate="min_norm")}
+    maps, skipped = fit_supported_mappings(centers.center_m[ok], cg.targets_m[ok])
+    if skipped:
+        cal = cal.with_quality(mappings_skipped=skipped)
     return cal.with_mappings(**maps)
+
+
+#: The gaze mappings :func:`calibrate_from_folder` fits, each where the points support it.
+CALIBRATION_MAPPINGS = ("eq1", "quadratic")
+
+
+def fit_supported_mappings(centers_m, targets_m) -> tuple[dict, dict]:
+    """The :data:`CALIBRATION_MAPPINGS` that ``m`` calibration points support, fitted
+    (``<kind>_<m>``, minimum-norm where the points leave a term undetermined), and those
+    skipped with why: a 3x3 pattern (9 points) fits Eq. (1) (8 terms), not the 10-term
+    quadratic.
+
+    Returns
+    -------
+    maps : dict[str, GazeMapping]
+    skipped : dict[str, str]
+        Mapping name -> reason (JSON-ready; recorded in the calibration's quality).
+    """
+    m = len(centers_m)
+    maps, skipped = {}, {}
+    for kind in CALIBRATION_MAPPINGS:
+        k, name = len(MAPPING_TERMS[kind]), f"{kind}_{m}"
+        if m < k:
+            skipped[name] = (f"the {kind!r} mapping has {k} terms and needs at least {k} "
+                             f"calibration points; {m} were usable")
+            continue
+        maps[name] = fit_gaze_mapping(centers_m, targets_m, kind, degenerate="min_norm")
+    return maps, skipped
 
 
 def save_calibration(calibration: Calibration, path) -> Path:
@@ -374,20 +252,13 @@ def save_calibration(calibration: Calibration, path) -> Path:
 
 
 def load_calibration(path) -> Calibration:
-    """Read and check a calibration file; errors name the file."""
+    """Read and check a calibration file; errors (TrackerInputError) name the file and key."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise TrackerInputError(f"{path}: cannot read the calibration ({exc})") from None
-    try:
-        return Calibration.from_json(text)
-    except ValueError as exc:
-        raise TrackerInputError(f"{path}: {exc}") from None
+    return Calibration.from_dict(load_json(path, TrackerInputError), path=path,
+                                 error=TrackerInputError)
 
 
 # --------------------------------------------------------------------------- tracking a folder
-
 
 
 @dataclass(frozen=True, slots=True)
@@ -407,6 +278,12 @@ class TrackSummary:
     @property
     def n_ok(self) -> int:
         return sum(s.ok for s in self.samples)
+
+    @property
+    def internal_errors(self) -> int:
+        """Frames whose processing raised (a bug: logged with its traceback); their samples
+        are NaN with reason ``internal_error:<exception>``."""
+        return len({s.frame_index for s in self.samples if s.reason.startswith(INTERNAL_ERROR)})
 
 
 def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "polynomial",
@@ -430,21 +307,39 @@ def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "p
     progress : callable, optional
         ``progress(done, total)`` after every frame.
     """
+    inputs = input_files(folder)
+    source = "the calibration"
+    if not isinstance(calibration, Calibration):
+        inputs.append(Path(calibration))
+        source = str(calibration)
+    refuse_overwriting_inputs(out_csv, inputs)
     if not isinstance(calibration, Calibration):
         calibration = load_calibration(calibration)
     if mapping is None:
         eq1 = sorted(k for k in calibration.mappings if k.startswith("eq1"))
-        mapping = eq1[-1] if eq1 else next(iter(calibration.mappings), "eq1_25")
-    tracker = Tracker(setup, calibration, method, mapping=mapping)
+        mapping = eq1[-1] if eq1 else next(iter(calibration.mappings), None)
+    if method == "polynomial" and mapping not in calibration.mappings:
+        skipped = calibration.quality.get("mappings_skipped") or {}
+        raise TrackerInputError(
+            f"{source}: no gaze mapping{' ' + repr(mapping) if mapping else ''} for polynomial "
+            f"gaze (has "
+            f"{sorted(calibration.mappings)}" + (f"; skipped: {sorted(skipped)}" if skipped else "")
+            + "); track with --method geometric, or calibrate with more points")
+    if method == "geometric" and not calibration.has_orbit:
+        raise TrackerInputError(f"{source}: no eye centre and orbit radius, which --method "
+                                "geometric needs")
     timing = read_timing(folder, setup)
+    # The frames were taken with the sidecar's exposure and strobe where it gives them.
+    setup = timing.apply(setup)
+    tracker = Tracker(setup, calibration, method, mapping=mapping or "")
     total = len(timing.frame_start_s)
     samples = []
     busy = 0.0
-    for done, (f, t0, img, err) in enumerate(iter_folder(folder, setup), start=1):
+    for done, (f, t0, img, err) in enumerate(iter_folder(folder, setup, timing), start=1):
         t = time.perf_counter()
         if err is not None:
             log.warning("frame %d: %s", f, err)
-            reason = MISSING_FRAME if err.endswith(": missing") else UNREADABLE_FRAME
+            reason = frame_reason(err)
             tracker.reset()
             out = tracker.process(None, f, t0)
             out = [replace(s, reason=reason) for s in out]

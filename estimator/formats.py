@@ -19,12 +19,14 @@ Folder layout (rendered datasets and prototype captures)::
 from __future__ import annotations
 
 import itertools
-import json
 import os
 import threading
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
+
+from .checks import load_json
+from .errors import InputError
 
 __all__ = [
     "TIMING_FORMAT", "TIMING_VERSION", "SAMPLES_FORMAT", "SAMPLES_VERSION", "SAMPLES_READABLE",
@@ -60,25 +62,34 @@ def check_format(data, path, fmt: str, versions, error: type[Exception] = ValueE
     and whose ``"version"`` is ``versions`` (an int) or one of them (a tuple).
     """
     allowed = (versions,) if isinstance(versions, int) else tuple(versions)
+
+    def refuse(message: str, key: str | None):
+        exc = error(f"{path}: {message}")
+        if isinstance(exc, InputError):  # the text stays as it was; path and key for code
+            exc.path, exc.key = str(path), key
+        return exc
+
     if not isinstance(data, dict):
-        raise error(f"{path}: expected a {fmt!r} document (a JSON object), got "
-                    f"{type(data).__name__}")
+        raise refuse(f"expected a {fmt!r} document (a JSON object), got {type(data).__name__}", None)
     if data.get("format") != fmt:
-        raise error(f"{path}: key 'format' is {data.get('format')!r}, expected {fmt!r}")
+        raise refuse(f"key 'format' is {_short(data.get('format'))}, expected {fmt!r}", "format")
     version = data.get("version")
     if isinstance(version, bool) or version not in allowed:
         want = allowed[0] if len(allowed) == 1 else f"one of {allowed}"
-        raise error(f"{path}: key 'version': this SCET reads {fmt} version {want}, the file "
-                    f"says {version!r}")
+        raise refuse(f"key 'version': this SCET reads {fmt} version {want}, the file says "
+                     f"{_short(version)}", "version")
     return int(version)
 
 
-def read_json(path, error: type[Exception] = ValueError):
-    """The parsed JSON document at ``path``; ``error`` naming the file if it cannot be read."""
-    try:
-        return json.loads(Path(path).read_bytes().decode("utf-8"))
-    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:
-        raise error(f"{path}: cannot read JSON ({exc})") from None
+def _short(value) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def read_json(path, error: type[InputError] = InputError):
+    """The parsed JSON document at ``path``; ``error`` naming the file if it cannot be read
+    (:func:`estimator.checks.load_json`: size limit, UTF-8, nesting depth)."""
+    return load_json(path, error)
 
 
 _counter = itertools.count()
@@ -104,7 +115,8 @@ def atomic_file(path) -> Iterator[Path]:
             write_exr(tmp, ...)
 
     The parent folder is created. On an exception the temporary is removed and ``path`` is left
-    as it was.
+    as it was; an ``OSError`` of the write (a full disk, a file-size limit) is raised again
+    naming ``path``, not the temporary.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -114,11 +126,14 @@ def atomic_file(path) -> Iterator[Path]:
         with open(tmp, "rb+") as fh:
             os.fsync(fh.fileno())
         os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         try:
             tmp.unlink()
         except OSError:
             pass
+        if isinstance(exc, OSError) and exc.errno and exc.filename in (None, str(tmp)):
+            # Name the file the user asked for, not the temporary that is gone.
+            raise OSError(exc.errno, f"cannot write ({exc.strerror})", str(path)) from None
         raise
 
 

@@ -39,7 +39,8 @@ from .folders import (
 )
 from .calibration import Calibration
 from .setup import Setup
-from .tracker import MISSING_FRAME, UNREADABLE_FRAME, Tracker, TrackerInputError
+from .inputs import frame_reason, input_files, refuse_overwriting_inputs
+from .tracker import Tracker, TrackerInputError
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +102,7 @@ def follow_frames(folder, setup: Setup, *, timeout_s: float = 5.0, poll_s: float
         path = None if f is None else frame_path(folder, f)
         if path is not None and path.is_file():
             try:
-                img = read_frame(path)
+                img = read_frame(path, (setup.camera.width_px, setup.camera.height_px))
             except TrackerInputError as exc:
                 if clock() - last <= timeout_s:
                     sleep(poll_s)  # still being written
@@ -129,6 +130,8 @@ def track_following(folder, setup: Setup, calibration, out_csv, *, method: str =
     ``samples.csv`` when it ends; ``progress(done, total)`` after every frame (total: the
     frames so far, or a dataset's count). Other arguments as
     :func:`estimator.folders.track_folder`; ``wait`` goes to :func:`follow_frames`."""
+    inputs = input_files(folder) + ([] if isinstance(calibration, Calibration) else [calibration])
+    refuse_overwriting_inputs(out_csv, inputs)
     if not isinstance(calibration, Calibration):
         calibration = load_calibration(calibration)
     if mapping is None:
@@ -142,7 +145,7 @@ def track_following(folder, setup: Setup, calibration, out_csv, *, method: str =
         t = time.perf_counter()
         if err is not None:
             log.warning("frame %d: %s", f, err)
-            reason = MISSING_FRAME if err.endswith(": missing") else UNREADABLE_FRAME
+            reason = frame_reason(err)
             tracker.reset()
             out = [replace(s, reason=reason) for s in tracker.process(None, f, t0)]
         else:

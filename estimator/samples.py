@@ -14,13 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import TrackerInputError
 from .eye import EYE_SPEED_MAX_DEG_S
 from .formats import SAMPLES_FORMAT, SAMPLES_READABLE, SAMPLES_VERSION, atomic_write
-
-
-class TrackerInputError(ValueError):
-    """A tracker input file (timing sidecar, calibration, frames folder) is missing or
-    malformed; the message names the file (and key)."""
 
 
 
@@ -162,14 +158,24 @@ def read_samples_csv(path) -> list[dict]:
     Reads versions 1 and 2 (:data:`SAMPLES_READABLE`); rows of version 1, written before prior
     assistance existed, get ``prior`` "0"."""
     path = Path(path)
-    text = path.read_text(encoding="utf-8")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except OSError as exc:
+        raise TrackerInputError(f"cannot read the samples ({exc.strerror or exc})",
+                                path=path) from None
+    except UnicodeDecodeError as exc:
+        raise TrackerInputError(f"not UTF-8 text ({exc.reason} at byte {exc.start})",
+                                path=path) from None
     first, _, rest = text.partition("\n")
     known = {f"# {SAMPLES_FORMAT} {v}": v for v in SAMPLES_READABLE}
     version = known.get(first.strip())
     if version is None:
         raise TrackerInputError(f"{path}: expected first line '# {SAMPLES_FORMAT} <version>' "
                                 f"with version in {SAMPLES_READABLE}, got {first[:60]!r}")
-    rows = list(csv.DictReader(io.StringIO(rest)))
+    try:
+        rows = list(csv.DictReader(io.StringIO(rest)))
+    except csv.Error as exc:  # a field over csv's size limit, a NUL byte
+        raise TrackerInputError(f"not a samples CSV ({exc})", path=path) from None
     if version == 1:
         for r in rows:
             r["prior"] = "0"

@@ -218,7 +218,9 @@ class Tracker:
             det = det.select(~det.has(NO_BAND))
             return [self._band(det, b, t) for b, t in zip(bands, times)]
         except Exception as exc:  # the stream must survive any one frame; the reason is logged
-            log.warning("frame %d: %s: %s", frame_index, type(exc).__name__, exc)
+            # A bug, not bad input: logged with its traceback, counted by the run's summary.
+            log.error("frame %d: internal error %s: %s; its samples are NaN (%s)", frame_index,
+                      type(exc).__name__, exc, INTERNAL_ERROR, exc_info=True)
             self.reset()
             return [failed_sample(frame_index, b.pulse_index, t, f"{INTERNAL_ERROR}:{type(exc).__name__}")
                     for b, t in zip(bands, times)]

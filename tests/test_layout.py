@@ -21,7 +21,7 @@ PACKAGES = ("estimator", "scet_render")
 #: first dotted part under the package names the layer (a subpackage or a top-level module).
 LAYERS = {
     "estimator": [
-        {"errors", "formats"},
+        {"errors", "checks", "formats"},
         {"geometry"},
         {"eye", "setup"},
         {"scene", "banding", "metrics"},
@@ -31,7 +31,7 @@ LAYERS = {
         {"glints", "capture"},
         {"matching"},
         {"tracker", "samples"},
-        {"folders"},
+        {"inputs", "folders"},
         {"live"},
     ],
     "scet_render": [
@@ -39,7 +39,7 @@ LAYERS = {
         {"simulate", "band_diagram"},
         {"dataset"},
         {"validate", "reproduce", "design", "study"},
-        {"cli", "cli_data", "cli_progress", "cli_studies", "__main__"},
+        {"cli", "cli_data", "cli_progress", "cli_studies", "runner", "__main__"},
     ],
 }
 #: What each package may import of the other packages and heavy libraries.

@@ -14,7 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..formats import MAPPING_FORMAT, MAPPING_VERSION, check_format
+from ..checks import Doc
+from ..errors import InputError
+from ..formats import MAPPING_FORMAT, MAPPING_VERSION
 from ..setup import DistanceSensor
 
 
@@ -39,6 +41,11 @@ MAPPING_TERMS = {
 #: 1e-6 separates an exactly degenerate pattern that only solver error makes "full rank" from
 #: one that a real measurement determines.
 RANK_RTOL = 1e-6
+#: Bounds of a mapping file's feature offsets and scales (m, or the distance reading's unit):
+#: a cornea centre lies within centimetres of the eye, a distance reading within metres; a
+#: scale is a spread of calibration points and positive.
+MAX_FEATURE = 1e3
+MIN_SCALE = 1e-12
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,13 +101,24 @@ class GazeMapping:
                 "rank": self.rank}
 
     @classmethod
-    def from_dict(cls, data: dict) -> "GazeMapping":
-        check_format(data, "gaze mapping", MAPPING_FORMAT, MAPPING_VERSION)
-        try:
-            return cls(data["kind"], data["coefficients"], data["offset_m"], data["scale_m"],
-                       int(data["n_points"]), float(data["rms_m"]), int(data["rank"]))
-        except KeyError as exc:
-            raise ValueError(f"{MAPPING_FORMAT}: missing key {exc}") from None
+    def from_dict(cls, data: dict, *, path="gaze mapping", key: str = "",
+                  error: type[InputError] = InputError) -> "GazeMapping":
+        """A mapping from its JSON document, every field typed and ranged (errors of type
+        ``error`` name ``path`` and the dotted key under ``key``)."""
+        doc = Doc(data, path, key, error)
+        doc.string("format", choices=(MAPPING_FORMAT,))
+        version = doc.integer("version")
+        if version != MAPPING_VERSION:
+            raise doc.error("version", f"this SCET reads {MAPPING_FORMAT} version "
+                                       f"{MAPPING_VERSION}, the file says {version}")
+        kind = doc.string("kind", choices=tuple(MAPPING_TERMS))
+        k, d = len(MAPPING_TERMS[kind]), len(MAPPING_TERMS[kind][0])
+        return cls(kind, doc.array("coefficients", (k, 2)),
+                   doc.array("offset_m", (d,), lo=-MAX_FEATURE, hi=MAX_FEATURE),
+                   doc.array("scale_m", (d,), lo=MIN_SCALE, hi=MAX_FEATURE),
+                   doc.integer("n_points", lo=1, hi=10_000_000),
+                   doc.number("rms_m", lo=0.0, hi=MAX_FEATURE, allow_nan=True),
+                   doc.integer("rank", lo=0, hi=k))
 
 
 def _design(kind, z):

@@ -30,6 +30,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from ..checks import Doc, parse_json
+from ..errors import InputError
 from ..formats import CALIBRATION_FORMAT, CALIBRATION_VERSION, check_format
 from ..geometry import RigidPose
 from .lighting import CORNEA_RADIUS_INIT_M, LightingFit, corrected_lights
@@ -38,6 +40,13 @@ from .orbit import OrbitFit
 
 # --------------------------------------------------------------------------------------------
 # Everything together
+
+#: Physical ranges of a calibration file's fields (m): a corneal radius of 1-50 mm (humans
+#: 6.7-9.4 mm, Read et al.; a value in millimetres under the ``_m`` key is refused), an orbit
+#: radius under 50 mm, an eye centre within 10 m of the world origin and a lighting correction
+#: of under a metre.
+FILE_RANGES = {"cornea_radius_m": (1e-3, 0.05), "orbit_radius_m": (0.0, 0.05),
+               "eye_center_m": 10.0, "translation_m": 1.0}
 
 
 @dataclass(frozen=True, slots=True)
@@ -137,25 +146,50 @@ class Calibration:
         }
 
     @classmethod
-    def from_dict(cls, data: dict) -> "Calibration":
-        check_format(data, "calibration", CALIBRATION_FORMAT, CALIBRATION_VERSION)
+    def from_dict(cls, data: dict, *, path="calibration",
+                  error: type[InputError] = InputError) -> "Calibration":
+        """A calibration from its JSON document, every field typed and physically ranged
+        (:data:`FILE_RANGES`); errors of type ``error`` name ``path`` and the dotted key."""
+        check_format(data, path, CALIBRATION_FORMAT, CALIBRATION_VERSION, error)
+        doc = Doc(data, path, error=error)
+        lc = doc.obj("lighting_correction")
+        rotation = lc.array("rotation", (3, 3), lo=-1.0 - 1e-9, hi=1.0 + 1e-9)
+        translation = lc.array("translation_m", (3,), lo=-FILE_RANGES["translation_m"],
+                               hi=FILE_RANGES["translation_m"])
         try:
-            lc = data["lighting_correction"]
-            ce, r_co = data["eye_center_m"], data["orbit_radius_m"]
-            return cls(RigidPose(lc["rotation"], lc["translation_m"]), data["cornea_radius_m"],
-                       np.full(3, np.nan) if ce is None else ce, float("nan") if r_co is None else r_co,
-                       {k: GazeMapping.from_dict(v) for k, v in data["mappings"].items()},
-                       data.get("methods", {}), data.get("quality", {}))
-        except (KeyError, TypeError) as exc:
-            raise ValueError(f"{CALIBRATION_FORMAT}: malformed document ({exc!r})") from None
+            pose = RigidPose(rotation, translation)
+        except ValueError as exc:
+            raise lc.error("rotation", str(exc)) from None
+        lo, hi = FILE_RANGES["cornea_radius_m"]
+        radius = doc.number("cornea_radius_m", lo=lo, hi=hi)
+        center = doc.array("eye_center_m", (3,), lo=-FILE_RANGES["eye_center_m"],
+                           hi=FILE_RANGES["eye_center_m"], required=False,
+                           default=np.full(3, np.nan))
+        lo, hi = FILE_RANGES["orbit_radius_m"]
+        r_co = doc.number("orbit_radius_m", lo=lo, hi=hi, required=False, default=float("nan"))
+        maps = doc.obj("mappings")
+        mappings = {name: GazeMapping.from_dict(maps.data[name], path=path,
+                                                key=maps.full(name), error=error)
+                    for name in maps.keys()}
+        methods = doc.obj("methods", required=False)
+        for name in methods.keys() if methods else ():
+            methods.string(name)
+        quality = doc.obj("quality", required=False)
+        if quality is not None:
+            for name in ("warnings",):
+                for i, w in enumerate(quality.items(name, required=False)):
+                    if not isinstance(w, str):
+                        raise quality.error(f"{name}[{i}]", "expected a string")
+            skipped = quality.obj("mappings_skipped", required=False)
+            for name in skipped.keys() if skipped else ():
+                skipped.string(name)
+        return cls(pose, radius, center, r_co, mappings, methods.data if methods else {},
+                   quality.data if quality else {})
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=1)
 
     @classmethod
-    def from_json(cls, text: str) -> "Calibration":
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{CALIBRATION_FORMAT}: not JSON ({exc})") from None
-        return cls.from_dict(data)
+    def from_json(cls, text: str, *, path="calibration",
+                  error: type[InputError] = InputError) -> "Calibration":
+        return cls.from_dict(parse_json(text, path, error), path=path, error=error)

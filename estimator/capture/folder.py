@@ -35,6 +35,8 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
+from ..checks import MAX_ABS, parse_json
+from ..errors import InputError
 from ..formats import FRAMES_DIR, atomic_write, check_format, frame_name, read_json
 from .raw import RawFormat, decode_raw, encode_raw, min_stride, parse_raw_format, row_bytes, to_tracker_frame
 
@@ -52,9 +54,15 @@ METADATA_KEYS = ("SensorTimestamp", "ExposureTime", "FrameDuration", "AnalogueGa
 #: A timestamp gap more than this far (in frame periods) from a whole number is not a run of
 #: dropped frames but a broken clock: the frame is left out.
 GAP_TOLERANCE_FRAMES = 0.25
+#: A gap of more frame periods than this after the previous frame is not a run of dropped
+#: frames (the capture program drops a few at a time) but a clock jump or a hostile time stamp:
+#: the frame is left out, and the index never claims slots the folder does not hold.
+MAX_GAP_FRAMES = 1000
+#: Latest SensorTimestamp read (ns, ~146 years of uptime): time stamps are int64 nanoseconds.
+MAX_TIMESTAMP_NS = 2 ** 62
 
 
-class CaptureError(ValueError):
+class CaptureError(InputError):
     """A capture folder that cannot be read; the message names the file and key."""
 
 
@@ -77,15 +85,17 @@ def is_capture_folder(folder) -> bool:
 
 def _number(d: dict, key: str, where: str, *, integer=False, positive=False):
     v = d.get(key)
-    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    ok = isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) <= MAX_ABS \
+        and math.isfinite(v)  # abs first: math.isfinite overflows on integers like 10**400
     if ok and integer:
         ok = float(v).is_integer()
     if ok and positive:
         ok = v > 0
     if not ok:
         what = "a positive " if positive else "a "
+        got = repr(v) if len(repr(v)) <= 60 else repr(v)[:57] + "..."
         raise CaptureError(f"{where}: key {key!r} must be {what}{'integer' if integer else 'number'}, "
-                           f"got {v!r}")
+                           f"got {got}")
     return int(v) if integer else float(v)
 
 
@@ -133,8 +143,10 @@ class CaptureFolder:
                                f"{self.raw_format.name} row of {self.width} px ({need} bytes)")
         gains = self.header.get("channel_gains", [1.0, 1.0, 1.0, 1.0])
         if not (isinstance(gains, list) and len(gains) == 4 and all(
-                isinstance(g, (int, float)) and not isinstance(g, bool) and g > 0 for g in gains)):
-            raise CaptureError(f"{head}: key 'channel_gains' must be 4 positive numbers (R, Gr, Gb, B)")
+                isinstance(g, (int, float)) and not isinstance(g, bool) and 0 < g <= 1e3
+                for g in gains)):
+            raise CaptureError(f"{head}: key 'channel_gains' must be 4 numbers in (0, 1000] "
+                               "(R, Gr, Gb, B)")
         self.channel_gains = tuple(float(g) for g in gains)
         self.timestamp_offset_s = (0.0 if "timestamp_offset_s" not in self.header else
                                    _number(self.header, "timestamp_offset_s", str(head)))
@@ -155,16 +167,18 @@ class CaptureFolder:
             if not line.strip():
                 continue
             try:
-                d = json.loads(line)
-            except json.JSONDecodeError as exc:
-                problems.append(f"{where}: not JSON ({exc.msg}); frame left out")
+                d = parse_json(line, where, CaptureError)
+            except CaptureError as exc:
+                problems.append(f"{exc}; frame left out")
                 continue
             try:
                 if not isinstance(d, dict):
                     raise CaptureError(f"{where}: expected a JSON object")
                 if "SensorTimestamp" not in d:
                     raise CaptureError(f"{where}: metadata key 'SensorTimestamp' missing")
-                _number(d, "SensorTimestamp", where, integer=True)
+                if not 0 <= _number(d, "SensorTimestamp", where, integer=True) <= MAX_TIMESTAMP_NS:
+                    raise CaptureError(f"{where}: key 'SensorTimestamp' must be in [0, "
+                                       f"{MAX_TIMESTAMP_NS}] ns")
             except CaptureError as exc:
                 problems.append(f"{exc}; frame left out")
                 continue
@@ -197,7 +211,7 @@ class CaptureFolder:
         if not period_ns > 0:
             raise CaptureError(f"{self._list}: cannot tell the frame period (one frame and no "
                                f"'FrameDuration')")
-        index, last_ts, t0 = {}, None, int(ts[0])
+        index, last_ts, last_f, t0 = {}, None, None, int(ts[0])
         for (number, d, problem), t in zip(self.entries, ts):
             where = f"{self._list}, line {number}: key 'SensorTimestamp'"
             if last_ts is not None and t <= last_ts:
@@ -206,6 +220,11 @@ class CaptureFolder:
                 continue
             k = (t - t0) / period_ns
             f = int(round(k))
+            if last_f is not None and f - last_f > MAX_GAP_FRAMES:
+                self.problems.append(f"{where} {t} lies {f - last_f} frame periods after the "
+                                     f"previous frame, more than {MAX_GAP_FRAMES}: a clock jump, "
+                                     "not dropped frames; frame left out")
+                continue
             if abs(k - f) > GAP_TOLERANCE_FRAMES:
                 self.problems.append(f"{where} {t} lies {k:.2f} frame periods after the first "
                                      f"frame, not on a frame slot; frame left out")
@@ -213,7 +232,7 @@ class CaptureFolder:
             if problem is not None:
                 self.problems.append(problem)
             index[f] = (number, d, (t - t0) * 1e-9 + self.timestamp_offset_s, problem)
-            last_ts = t
+            last_ts, last_f = t, f
         for p in self.problems:
             log.warning("%s", p)
         return period_ns * 1e-9, index
@@ -284,8 +303,10 @@ def _frame_problem(d: dict, where: str) -> str | None:
         _number(d, "AnalogueGain", where, positive=True)
         bl = d["SensorBlackLevels"]
         if not (isinstance(bl, list) and len(bl) == 4 and all(
-                isinstance(v, (int, float)) and not isinstance(v, bool) for v in bl)):
-            raise CaptureError(f"{where}: key 'SensorBlackLevels' must be 4 numbers (R, Gr, Gb, B)")
+                isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v <= 65535
+                for v in bl)):
+            raise CaptureError(f"{where}: key 'SensorBlackLevels' must be 4 numbers in [0, 65535] "
+                               "(R, Gr, Gb, B on a 16-bit scale)")
     except CaptureError as exc:
         return str(exc)
     return None

@@ -342,7 +342,7 @@ def test_mapping_json_round_trip(arc_fits):
         GazeMapping.from_dict({**m.to_dict(), "version": 99})
     with pytest.raises(ValueError, match="scet-gaze-mapping"):
         GazeMapping.from_dict({**m.to_dict(), "format": "something-else"})
-    with pytest.raises(ValueError, match="shape"):
+    with pytest.raises(ValueError, match="key .coefficients.: expected 8 entries"):
         GazeMapping.from_dict({**m.to_dict(), "coefficients": [[0.0, 0.0]]})
 
 
@@ -365,7 +365,7 @@ def test_calibration_json_round_trip(arc, arc_fits):
         Calibration.from_dict({**cal.to_dict(), "version": 2})
     with pytest.raises(ValueError, match="not JSON"):
         Calibration.from_json("{")
-    with pytest.raises(ValueError, match="malformed"):
+    with pytest.raises(ValueError, match="key .mappings.: missing required key"):
         Calibration.from_dict({k: v for k, v in cal.to_dict().items() if k != "mappings"})
 
 

@@ -199,7 +199,7 @@ def test_missing_timing_names_the_folder(tmp_path, setup, calibration, frames):
     ("{", "cannot read JSON"),
     (json.dumps({"format": "other", "version": 1, "frames": {"0": 0.0}}), "format"),
     (json.dumps({"format": "scet-timing", "version": 99, "frames": {"0": 0.0}}), "version"),
-    (json.dumps({"format": "scet-timing", "version": 1, "frames": {"x": 0.0}}), "'frames'"),
+    (json.dumps({"format": "scet-timing", "version": 1, "frames": {"x": 0.0}}), "'frames.x'"),
     (json.dumps({"format": "scet-timing", "version": 1, "frames": {}}), "'frames'"),
 ])
 def test_malformed_timing_names_file_and_key(tmp_path, setup, text, key):
