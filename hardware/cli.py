@@ -8,6 +8,8 @@ import os
 import sys
 from pathlib import Path
 
+from scet_render.runner import finite, integer  # NaN, infinite and absurd flags refused up front
+
 __all__ = ["register"]
 
 PORT_ENV = "SCET_STROBE_PORT"
@@ -146,11 +148,11 @@ def cmd_hardware(args) -> int:
 def _plan_args(p) -> None:
     p.add_argument("--profile", default="ov5647_mode6", choices=("ov5647_mode6", "ov5647_mode7"),
                    help="sensor reading: mode6 = today's kernel driver, S = 524 (default); mode7, S = 786")
-    p.add_argument("--frame-us", type=float, default=16636.0, help="wanted frame period (default 16636)")
-    p.add_argument("--pulses", type=int, help="pulses per frame (default 16)")
-    p.add_argument("--pulse-us", type=float, default=100.0)
-    p.add_argument("--exposure-us", type=float, help="default Eq. (8): period - pulse")
-    p.add_argument("--gain", type=float, default=1.0, help="analogue gain")
+    p.add_argument("--frame-us", type=finite(100.0, 1e7), default=16636.0, help="wanted frame period (default 16636)")
+    p.add_argument("--pulses", type=integer(1, 1000), help="pulses per frame (default 16)")
+    p.add_argument("--pulse-us", type=finite(0.1, 1e6), default=100.0)
+    p.add_argument("--exposure-us", type=finite(1.0, 1e7), help="default Eq. (8): period - pulse")
+    p.add_argument("--gain", type=finite(1.0, 64.0), default=1.0, help="analogue gain")
     p.add_argument("--single", action="store_true", help="single-pulse frames (calibration, Sec. 2.4)")
 
 
@@ -160,10 +162,10 @@ def register(sub) -> None:
     p.add_argument("action", choices=("ping", "get", "set", "phase", "count", "start", "stop"))
     p.add_argument("ticks", nargs="?", type=int, help="phase: shift in ticks (+ delays the train)")
     p.add_argument("--port", help=f"serial port (default ${PORT_ENV})")
-    p.add_argument("--timeout", type=float, default=1.0, help="seconds to wait for a reply")
-    p.add_argument("--wait-ready", type=float, default=0.0,
+    p.add_argument("--timeout", type=finite(0.0, 3600.0), default=1.0, help="seconds to wait for a reply")
+    p.add_argument("--wait-ready", type=finite(0.0, 3600.0), default=0.0,
                    help="seconds to wait for the board's READY line after opening (it resets)")
-    p.add_argument("--pulses", type=int)
+    p.add_argument("--pulses", type=integer(1, 1000))
     p.add_argument("--width-ticks", type=int)
     p.add_argument("--period-ticks", type=int)
     p.add_argument("--trim", type=int, help="1/256 tick added to each period on average")
@@ -173,24 +175,24 @@ def register(sub) -> None:
 
     p = sub.add_parser("capture", help="capture raw frames on the Pi, or replay a rendered dataset")
     p.add_argument("--out", type=Path, required=True, help="capture folder")
-    p.add_argument("--frames", type=int, default=600)
+    p.add_argument("--frames", type=integer(1, 10_000_000), default=600)
     p.add_argument("--replay", type=Path, help="a rendered dataset to replay instead of a camera")
     p.add_argument("--scene", help="replay: the scene (default: the one in the manifest)")
     p.add_argument("--raw-format", default="SGBRG10_CSI2P", help="SGBRG10_CSI2P (packed) or SGBRG10")
     p.add_argument("--channel-response", default="1,1,1,1", help="replay: R,Gr,Gb,B relative response")
     p.add_argument("--strobe-port", help="set the strobe firmware to the plan first (serial port)")
-    p.add_argument("--timeout", type=float, default=1.0)
+    p.add_argument("--timeout", type=finite(0.0, 3600.0), default=1.0)
     _plan_args(p)
     p.set_defaults(func=cmd_capture)
 
     p = sub.add_parser("hardware", help="the prototype's mirror (STL + light list) and settings plan")
     p.add_argument("action", choices=("mirror", "plan"))
     p.add_argument("--out", type=Path, default=Path("out/mirror"), help="mirror: output folder")
-    p.add_argument("--radius-mm", type=float, default=33.0)
-    p.add_argument("--span-deg", type=float, default=90.0)
-    p.add_argument("--width-mm", type=float, default=2.0)
-    p.add_argument("--thickness-mm", type=float, default=1.5)
-    p.add_argument("--turns", type=int, default=35)
-    p.add_argument("--wire-mm", type=float, default=0.8)
+    p.add_argument("--radius-mm", type=finite(1.0, 1000.0), default=33.0)
+    p.add_argument("--span-deg", type=finite(1.0, 360.0), default=90.0)
+    p.add_argument("--width-mm", type=finite(0.01, 100.0), default=2.0)
+    p.add_argument("--thickness-mm", type=finite(0.01, 100.0), default=1.5)
+    p.add_argument("--turns", type=integer(1, 10_000), default=35)
+    p.add_argument("--wire-mm", type=finite(0.01, 100.0), default=0.8)
     _plan_args(p)
     p.set_defaults(func=cmd_hardware)

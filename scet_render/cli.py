@@ -14,6 +14,7 @@ import numpy as np
 
 from .cli_data import add_dataset_parsers, add_render_parser
 from .cli_progress import StageBars, print_table, progress_bar
+from .runner import MAX_FRAMES, MAX_SEED, MAX_SPP, finite, integer, run
 
 
 def _describe(setup) -> str:
@@ -109,8 +110,10 @@ def cmd_export_mitsuba(args) -> int:
 
 def cmd_calibrate(args) -> int:
     from estimator.folders import calibrate_from_folder, save_calibration
+    from estimator.inputs import input_files, refuse_overwriting_inputs
     from estimator.scene import load_scene
 
+    refuse_overwriting_inputs(args.out, input_files(args.dir))
     setup = load_scene(args.scene)
     cal = calibrate_from_folder(args.dir, setup)
     path = save_calibration(cal, args.out)
@@ -118,6 +121,9 @@ def cmd_calibrate(args) -> int:
     print(f"calibration written to {path}: r_c = {cal.cornea_radius_m * 1e3:.3f} mm, "
           f"r_co = {cal.orbit_radius_m * 1e3:.3f} mm, glint RMS {q.get('rms_px', float('nan')):.3f} px, "
           f"{q.get('frames_used', '?')} of {q.get('frames_total', '?')} frames")
+    for name, why in sorted(q.get("mappings_skipped", {}).items()):
+        print(f"mapping {name} skipped: {why} (fitted: {', '.join(sorted(cal.mappings)) or 'none'}; "
+              f"recorded in {path}, quality.mappings_skipped)")
     for w in cal.warnings:
         print(f"warning: {w}", file=sys.stderr)
     if cal.warnings:
@@ -127,12 +133,12 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_track(args) -> int:
-    from estimator.folders import load_calibration, track_folder
+    from estimator.folders import track_folder
     from estimator.live import track_following
     from estimator.scene import load_scene
 
     setup = load_scene(args.scene)
-    cal = load_calibration(args.calibration)
+    cal = args.calibration  # the path: --out naming it is refused, errors name it
     bar, update = progress_bar(0, "frame", "track")
     try:
         if args.follow:
@@ -148,6 +154,12 @@ def cmd_track(args) -> int:
     print(f"throughput: {summary.samples_per_s:.0f} samples/s, "
           f"{summary.frames / summary.seconds if summary.seconds > 0 else float('nan'):.1f} "
           f"frames/s ({summary.seconds:.2f} s tracking, one core)")
+    if summary.internal_errors:
+        where = "above" if args.run_log.debug else f"in {args.run_log.file()}"
+        print(f"scet track: internal error in {summary.internal_errors} frame(s): their samples "
+              f"are NaN (reason internal_error:...), tracebacks {where}; this is a bug in SCET, "
+              "please report it", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -234,6 +246,8 @@ def cmd_demo(args) -> int:
 
 def build_parser() -> argparse.ArgumentParser:
     ap = argparse.ArgumentParser(prog="scet", description="Stroboscopic catadioptric eye tracking toolkit.")
+    ap.add_argument("--debug", action="store_true",
+                    help="print the traceback of an internal error instead of logging it to a file")
     sub = ap.add_subparsers(dest="command", required=True)
     scene_help = "scene file or built-in scene name (default: paper_sim)"
 
@@ -246,8 +260,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("bands", help="band layout of a frame (table) and a diagram like the paper's Fig. 2")
     p.add_argument("scene", nargs="?", help=scene_help)
-    p.add_argument("--frame", type=int, default=0, help="frame index (default 0)")
-    p.add_argument("--frames", type=int, default=1, help="frames drawn in the diagram (default 1)")
+    p.add_argument("--frame", type=integer(0, MAX_FRAMES), default=0, help="frame index (default 0)")
+    p.add_argument("--frames", type=integer(1, 1000), default=1, help="frames drawn in the diagram (default 1)")
     p.add_argument("--png", type=Path, help="write the diagram to this PNG")
     p.set_defaults(func=cmd_bands)
 
@@ -256,9 +270,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--targets", default="grid:24x15",
                    help="grid:COLSxROWS (cell centres), calib:COLSxROWS (edge to edge), centre, or a CSV "
                         "of x_m,y_m,z_m (default grid:24x15)")
-    p.add_argument("--noise", type=float, default=0.5, help="feature position error e_f in px (default 0.5)")
+    p.add_argument("--noise", type=finite(0.0, 100.0), default=0.5, help="feature position error e_f in px (default 0.5)")
     p.add_argument("--noise-model", choices=("uniform", "gaussian"), default="uniform")
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--seed", type=integer(0, MAX_SEED), default=1)
     p.add_argument("--out", type=Path, required=True, help="output file, .npz or .csv")
     p.set_defaults(func=cmd_simulate)
 
@@ -267,9 +281,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("export-mitsuba", help="write a Mitsuba XML scene (+ meshes) of a scene file")
     p.add_argument("scene", nargs="?", help=scene_help)
     p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--yaw-deg", type=float, default=0.0, help="eye yaw (Fick, degrees, + toward +x)")
-    p.add_argument("--pitch-deg", type=float, default=0.0, help="eye pitch (Fick, degrees, + up)")
-    p.add_argument("--spp", type=int, default=64)
+    p.add_argument("--yaw-deg", type=finite(-90.0, 90.0), default=0.0, help="eye yaw (Fick, degrees, + toward +x)")
+    p.add_argument("--pitch-deg", type=finite(-90.0, 90.0), default=0.0, help="eye pitch (Fick, degrees, + up)")
+    p.add_argument("--spp", type=integer(1, MAX_SPP), default=64)
     p.add_argument("--cornea", choices=("dielectric", "conductor"), default="dielectric")
     p.set_defaults(func=cmd_export_mitsuba)
 
@@ -288,7 +302,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--follow", action="store_true",
                    help="track the frames as they are written (live): stop on an 'end' file, a "
                         "dataset's last frame or --timeout seconds without a new frame")
-    p.add_argument("--timeout", type=float, default=5.0,
+    p.add_argument("--timeout", type=finite(0.001, 86400.0), default=5.0,
                    help="with --follow: seconds without a new frame before stopping (default 5)")
     p.set_defaults(func=cmd_track)
 
@@ -298,20 +312,20 @@ def build_parser() -> argparse.ArgumentParser:
                                         "ground truth and with the feature-level simulation")
     p.add_argument("scene", nargs="?", help=scene_help)
     p.add_argument("--quick", action="store_true", help="reduced size: under 3 minutes on 2 cores")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
     p.add_argument("--out", type=Path, default=Path("out/validate"), help="work folder for renders")
     p.add_argument("--report-dir", type=Path, default=Path("reports"), help="where validation.md goes")
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("reproduce", help="reproduce the paper's Section 3 side by side with ours")
     p.add_argument("--quick", action="store_true", help="fewer trials: under 2 minutes on 2 cores")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
     p.add_argument("--out", type=Path, default=Path("reports"), help="report folder (default reports/)")
     p.set_defaults(func=cmd_reproduce)
 
     p = sub.add_parser("demo", help="feature-level summary of a scene: band layout and glint statistics")
     p.add_argument("scene", nargs="?", help=scene_help)
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--seed", type=integer(0, MAX_SEED), default=1)
     p.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     p.set_defaults(func=cmd_demo)
 
@@ -326,14 +340,13 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from estimator.errors import SceneError
-
-    args = build_parser().parse_args(argv)
+    """Run ``scet``: exit status 0, 2 for bad input (one line naming the file and key), 1 for
+    an internal error (:mod:`scet_render.runner`)."""
     try:
-        return args.func(args)
-    except (SceneError, ValueError, OSError) as exc:
-        print(f"scet {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # argparse refused a flag (status 2), or --help (0)
+        return int(exc.code or 0)
+    return run(args)
 
 
 if __name__ == "__main__":

@@ -8,6 +8,7 @@ import sys
 from pathlib import Path
 
 from .cli_progress import print_table, progress_bar
+from .runner import MAX_RENDER_FRAMES, MAX_SEED, MAX_SPP, integer
 
 
 def _grid_pattern(text: str) -> tuple[int, int]:
@@ -106,6 +107,11 @@ def cmd_dataset(args) -> int:
 def cmd_score(args) -> int:
     from .validate import reasons_table, score_samples, score_table, write_score_report
 
+    if args.markdown:
+        from estimator.inputs import input_files, refuse_overwriting_inputs
+
+        refuse_overwriting_inputs(args.markdown, [*args.samples, *input_files(args.dataset)],
+                                  "--markdown")
     score = score_samples(args.samples, args.dataset)
     print(score_table(score))
     print()
@@ -120,20 +126,21 @@ def add_render_parser(sub, scene_help: str) -> None:
     """``scet render``."""
     p = sub.add_parser("render", help="render a labelled dataset of banded frames with Mitsuba 3")
     p.add_argument("scene", nargs="?", help=scene_help)
-    p.add_argument("--frames", type=int, help="number of frames (banded datasets)")
-    p.add_argument("--workers", type=int, help="render on a local Ray started for the run with "
+    p.add_argument("--frames", type=integer(1, MAX_RENDER_FRAMES),
+                   help="number of frames (banded datasets)")
+    p.add_argument("--workers", type=integer(1, 4096), help="render on a local Ray started for the run with "
                                                 "this many workers (actors), same bytes")
     p.add_argument("--ray-address", help="render on an existing Ray cluster (ray start --head "
                                          "prints the address; 'auto' finds a local one)")
-    p.add_argument("--cpus-per-worker", type=int, default=1,
+    p.add_argument("--cpus-per-worker", type=integer(1, 1024), default=1,
                    help="CPUs per worker; Dr.Jit's thread count (default 1)")
     p.add_argument("--calibration", metavar="PATTERN",
                    help="render single-pulse calibration frames instead: one per target of a "
                         "COLSxROWS fixation pattern (3x3, 5x5, 6x6) on the scene's screen")
     p.add_argument("--out", type=Path, required=True, help="dataset folder (resumed if interrupted)")
-    p.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
+    p.add_argument("--spp", type=integer(1, MAX_SPP), default=16, help="samples per pixel (default 16)")
     p.add_argument("--trajectory", choices=("fixations", "saccades", "grid"), default="fixations")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
     p.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb when libLLVM >= 16 is found, "
                                      "else scalar_rgb)")
     p.add_argument("--cornea", choices=("dielectric", "conductor"), default="dielectric")

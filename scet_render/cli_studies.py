@@ -7,6 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from .cli_progress import StageBars
+from .runner import MAX_SEED, finite, integer
 
 
 def rendered_band_shares(setup, samples_csv) -> dict:
@@ -133,24 +134,24 @@ def add_parsers(sub) -> None:
     p = sub.add_parser("design-lights", help="search a light layout that puts enough glints in "
                                              "every band; writes a scene and a report")
     p.add_argument("scene", nargs="?", help=scene_help)
-    p.add_argument("--lights", type=int, default=80, help="light budget (default 80)")
-    p.add_argument("--arcs", type=int, default=3, help="arcs of the family (default 3)")
-    p.add_argument("--free", type=int, default=16,
+    p.add_argument("--lights", type=integer(1, 10_000), default=80, help="light budget (default 80)")
+    p.add_argument("--arcs", type=integer(1, 100), default=3, help="arcs of the family (default 3)")
+    p.add_argument("--free", type=integer(0, 10_000), default=16,
                    help="lights of the budget kept for free positions (default 16; 0 in wire style)")
     p.add_argument("--style", choices=("free", "wire"), default="free",
                    help="wire: arcs of 0.8 mm turns only, as the prototype's wound mirror")
-    p.add_argument("--min-eye-distance-mm", type=float, default=20.0)
-    p.add_argument("--max-eye-distance-mm", type=float, default=50.0)
-    p.add_argument("--max-z-mm", type=float, default=-2.0, help="lights in front of this plane")
-    p.add_argument("--screen-margin-deg", type=float, default=2.0)
-    p.add_argument("--frame-z-mm", type=float, help="put lights on the glasses-frame plane z")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--maxiter", type=int, default=40, help="differential evolution generations")
-    p.add_argument("--popsize", type=int, default=8)
-    p.add_argument("--need", type=int, default=6, help="glints a band should hold (>= 5)")
-    p.add_argument("--motion", type=int, default=96, help="design poses from the motion model")
-    p.add_argument("--search-step", type=int, default=3, help="search on every n-th design pose")
-    p.add_argument("--candidates", type=int, default=1500, help="free positions drawn")
+    p.add_argument("--min-eye-distance-mm", type=finite(0.0, 1000.0), default=20.0)
+    p.add_argument("--max-eye-distance-mm", type=finite(0.0, 1000.0), default=50.0)
+    p.add_argument("--max-z-mm", type=finite(-1000.0, 1000.0), default=-2.0, help="lights in front of this plane")
+    p.add_argument("--screen-margin-deg", type=finite(0.0, 45.0), default=2.0)
+    p.add_argument("--frame-z-mm", type=finite(-1000.0, 1000.0), help="put lights on the glasses-frame plane z")
+    p.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
+    p.add_argument("--maxiter", type=integer(1, 10_000), default=40, help="differential evolution generations")
+    p.add_argument("--popsize", type=integer(1, 1000), default=8)
+    p.add_argument("--need", type=integer(1, 1000), default=6, help="glints a band should hold (>= 5)")
+    p.add_argument("--motion", type=integer(1, 100_000), default=96, help="design poses from the motion model")
+    p.add_argument("--search-step", type=integer(1, 100_000), default=3, help="search on every n-th design pose")
+    p.add_argument("--candidates", type=integer(1, 1_000_000), default=1500, help="free positions drawn")
     p.add_argument("--out", type=Path, help="scene file (default scenes/<scene>_designed.toml)")
     p.add_argument("--report-dir", type=Path, default=Path("reports/design"))
     p.add_argument("--validate", action="store_true",
@@ -165,7 +166,7 @@ def add_parsers(sub) -> None:
     e.add_argument("--lighting", action="append", metavar="LABEL=SCENE",
                    help="a lighting to study (repeatable; default current=paper_sim)")
     e.add_argument("--quick", action="store_true", help="reduced size: 320x240, 4 spp, 120 frames")
-    e.add_argument("--seed", type=int, default=0)
+    e.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
     e.add_argument("--out", type=Path, default=Path("out/events"), help="work folder for renders")
     e.add_argument("--report-dir", type=Path, default=Path("reports"))
     e.set_defaults(func=cmd_study_events)

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from estimator.errors import InputError
 from estimator.formats import GLINTS_FORMAT, GLINTS_VERSION, atomic_file
 from estimator.setup import Setup
 
@@ -124,7 +125,7 @@ def simulate_glints(setup: Setup, targets_m, *, noise_px: float = 0.0, noise_mod
                              noise_model, None if seed is None else int(seed))
 
 
-_GRID = re.compile(r"^grid:(\d+)x(\d+)$")
+_GRID = re.compile(r"^grid:(\d{1,9})x(\d{1,9})$")
 
 
 def parse_targets(spec: str, setup: Setup) -> np.ndarray:
@@ -133,12 +134,12 @@ def parse_targets(spec: str, setup: Setup) -> np.ndarray:
     or the path of a CSV file with x_m, y_m, z_m columns (a header line is allowed)."""
     m = _GRID.match(spec)
     if m:
-        return setup.screen.grid(int(m.group(1)), int(m.group(2)))
+        return setup.screen.grid(*_grid_size(spec, m))
     if spec.startswith("calib:"):
         m = _GRID.match("grid:" + spec[len("calib:"):])
         if not m:
-            raise ValueError(f"bad target spec {spec!r}: expected calib:COLSxROWS, e.g. calib:5x5")
-        return setup.screen.grid(int(m.group(1)), int(m.group(2)), margin=0.0)
+            raise InputError(f"bad target spec {spec!r}: expected calib:COLSxROWS, e.g. calib:5x5")
+        return setup.screen.grid(*_grid_size(spec, m), margin=0.0)
     if spec in ("centre", "center"):
         return setup.screen.grid(1, 1)
     path = Path(spec)
@@ -146,13 +147,28 @@ def parse_targets(spec: str, setup: Setup) -> np.ndarray:
         try:
             data = np.loadtxt(path, delimiter=",", ndmin=2, comments="#",
                               skiprows=1 if not _is_number(path.read_text().split(",")[0]) else 0)
-        except ValueError as exc:
-            raise ValueError(f"{path}: cannot read targets ({exc})") from None
+        except ValueError as exc:  # UnicodeDecodeError too
+            raise InputError(f"{path}: cannot read targets ({exc})") from None
         if data.shape[1] != 3 or not np.all(np.isfinite(data)):
             raise ValueError(f"{path}: expected finite x_m, y_m, z_m columns, got shape {data.shape}")
         return data
     raise ValueError(f"bad target spec {spec!r}: expected grid:COLSxROWS, calib:COLSxROWS, centre "
                      "or an existing .csv file")
+
+
+#: Most targets a grid spec may ask for: 100,000 targets of 40 lights are 64 MB of glints; the
+#: paper's accuracy grid has 360.
+MAX_TARGETS = 100_000
+
+
+def _grid_size(spec: str, m) -> tuple[int, int]:
+    """(cols, rows) of a matched grid spec, refused when empty or absurdly large (a grid that
+    would need gigabytes is refused before anything is allocated)."""
+    cols, rows = int(m.group(1)), int(m.group(2))
+    if cols < 1 or rows < 1 or cols * rows > MAX_TARGETS:
+        raise InputError(f"bad target spec {spec!r}: expected 1 to {MAX_TARGETS} targets "
+                         f"(COLSxROWS, each at least 1), got {cols}x{rows} = {cols * rows}")
+    return cols, rows
 
 
 def _is_number(text: str) -> bool:

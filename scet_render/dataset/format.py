@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from estimator import formats
+from estimator.errors import InputError
 
 #: The dataset's names on disk, from SCET's one list of them (:mod:`estimator.formats`).
 FORMAT, VERSION = formats.DATASET_FORMAT, formats.DATASET_VERSION
@@ -35,7 +36,7 @@ _STREAM_RENDER = 1
 _STREAM_SENSOR = 2
 
 
-class DatasetError(ValueError):
+class DatasetError(InputError):
     """A dataset folder or file is missing, malformed or of another format or version."""
 
 
@@ -103,13 +104,6 @@ def _exr():
 
 def _floats(v) -> list[float]:
     return [float(x) for x in np.asarray(v).ravel()]
-
-
-def _vec3(v) -> np.ndarray:
-    a = np.array(v, dtype=np.float64)
-    if a.shape != (3,):
-        raise ValueError(f"expected 3 numbers, got {v!r}")
-    return a
 
 
 def _check_int(name: str, value, minimum: int) -> int:

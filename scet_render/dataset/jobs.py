@@ -24,9 +24,9 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
+from estimator.errors import TrackerInputError
 from estimator.formats import atomic_write, frame_name
+from estimator.inputs import read_frame
 from estimator.setup import Setup
 
 from ..render import SensorModel
@@ -96,20 +96,17 @@ class DatasetPlan:
 def frame_intact(frames_dir: Path, frame: int, scene_sha256: str, shape) -> bool:
     """Whether frame ``frame`` is complete and intact: its EXR reads with this frame's index
     and scene, and its PNG decodes to ``shape`` (height, width)."""
-    import cv2
-
     exr, png = frames_dir / frame_name(frame, "exr"), frames_dir / frame_name(frame, "png")
     if not (exr.is_file() and png.is_file()):
         return False
-    try:
-        e = read_exr(exr)
-    except (DatasetError, OSError, ValueError):
+    size = (int(shape[1]), int(shape[0]))
+    try:  # both refused by their headers before decoding when of another size
+        e = read_exr(exr, size)
+        img = read_frame(png, size)
+    except (DatasetError, TrackerInputError, OSError, ValueError):
         return False
-    if e.frame != frame or e.scene_sha256 != scene_sha256 or e.radiance.shape != tuple(shape):
-        return False
-    data = np.fromfile(png, dtype=np.uint8)
-    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
-    return img is not None and img.shape == tuple(shape)
+    return (e.frame == frame and e.scene_sha256 == scene_sha256
+            and e.radiance.shape == tuple(shape) and img.shape == tuple(shape))
 
 
 def prepare_dataset(setup: Setup, out_dir, *, frames: int, spp: int = 16,

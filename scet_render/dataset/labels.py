@@ -5,6 +5,7 @@ computing, writing and reading them.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -12,11 +13,13 @@ from typing import Iterator
 import numpy as np
 
 from estimator.banding import band_layout, strobe_instant
+from estimator.checks import Doc, iter_json_lines
+from estimator.inputs import MAX_FRAMES, MAX_FRAME_PX
 from estimator.setup import Setup
 
 from ..motion import Trajectory
 from ..simulate import ground_truth_glints
-from .format import FORMAT, LABELS_NAME, VERSION, DatasetError, StrobeLabel, _floats, _vec3
+from .format import FORMAT, LABELS_NAME, VERSION, DatasetError, StrobeLabel, _floats
 from .manifest import read_manifest
 
 # --------------------------------------------------------------------------- labels
@@ -98,8 +101,11 @@ class ExrFrame:
     scene_sha256: str
 
 
-def read_exr(path) -> ExrFrame:
+def read_exr(path, size_px: tuple[int, int] | None = None) -> ExrFrame:
     """Read a dataset frame's EXR file, checking its format and version attributes.
+
+    The header's data window is checked before the pixels are read: it must be ``size_px``
+    (W, H) when given, and at most :data:`estimator.inputs.MAX_FRAME_PX` pixels.
 
     Raises
     ------
@@ -110,12 +116,23 @@ def read_exr(path) -> ExrFrame:
 
     path = Path(path)
     try:
+        with OpenEXR.File(str(path), header_only=True) as exr:
+            (x0, y0), (x1, y1) = (np.asarray(c, dtype=np.int64) for c in exr.header()["dataWindow"])
+        width, height = int(x1 - x0 + 1), int(y1 - y0 + 1)
+        if size_px is not None and (width, height) != tuple(size_px):
+            raise DatasetError(f"{path}: frame size {width}x{height} px in its EXR header, the "
+                               f"dataset's is {size_px[0]}x{size_px[1]}")
+        if not (0 < width and 0 < height and width * height <= MAX_FRAME_PX):
+            raise DatasetError(f"{path}: frame size {width}x{height} px in its EXR header, more "
+                               f"than SCET reads ({MAX_FRAME_PX} px)")
         with OpenEXR.File(str(path)) as exr:
             # The binding empties its header dict when the file closes: copy what we need.
             header, channels = dict(exr.header()), exr.channels()
             names = sorted(channels)
             radiance = np.array(channels["Y"].pixels, copy=True) if "Y" in channels else None
-    except (OSError, RuntimeError) as exc:
+    except (OSError, RuntimeError, KeyError, TypeError, ValueError) as exc:
+        if isinstance(exc, DatasetError):
+            raise
         raise DatasetError(f"{path}: cannot read the EXR file ({exc})") from None
     if header.get("scet_format") != FORMAT or header.get("scet_version") != VERSION:
         raise DatasetError(f"{path}: expected {FORMAT} version {VERSION} attributes, got "
@@ -126,8 +143,8 @@ def read_exr(path) -> ExrFrame:
         pulses = np.array(json.loads(header["scet_pulse_indices"]), dtype=np.int64)
         times = np.array(json.loads(header["scet_strobe_times_s"]), dtype=np.float64)
         frame, sha = int(header["scet_frame"]), str(header["scet_scene_sha256"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise DatasetError(f"{path}: malformed SCET header attributes ({exc})") from None
+    except (KeyError, TypeError, ValueError, RecursionError) as exc:
+        raise DatasetError(f"{path}: malformed SCET header attributes ({exc!r})") from None
     if pulses.shape != times.shape or pulses.ndim != 1:
         raise DatasetError(f"{path}: scet_pulse_indices and scet_strobe_times_s differ in length")
     return ExrFrame(radiance, frame, pulses, times, sha)
@@ -157,24 +174,27 @@ def iter_labels(path) -> Iterator[StrobeLabel]:
     if not file.is_file():
         raise DatasetError(f"{file}: missing; the run that writes this dataset did not finish "
                            "(rerun render_dataset with the same arguments to complete it)")
-    with open(file, encoding="utf-8") as f:
-        for number, line in enumerate(f, start=1):
-            try:
-                yield _label(json.loads(line))
-            except (json.JSONDecodeError, KeyError, TypeError, ValueError) as exc:
-                raise DatasetError(f"{file}, line {number}: malformed label ({exc})") from None
+    for where, data in iter_json_lines(file, DatasetError):
+        yield _label(Doc(data, where, error=DatasetError))
 
 
-def _label(d: dict) -> StrobeLabel:
-    glints = np.array([[np.nan, np.nan] if g is None else g for g in d["glints_px"]],
-                      dtype=np.float64).reshape(-1, 2)
-    visible = np.array(d["glints_visible"], dtype=bool)
+#: Bounds of a label's fields: positions (m) as in scene files, times (s), pixels and rows.
+_POSITION_M, _TIME_S, _PIXEL, _ROWS = 100.0, 1e9, 1e7, 10 ** 6
+
+
+def _label(d: Doc) -> StrobeLabel:
+    glints = d.array("glints_px", (None, 2), lo=-_PIXEL, hi=_PIXEL, allow_null=True)
+    visible = np.array(d.booleans("glints_visible"), dtype=bool)
     if visible.shape != (glints.shape[0],):
-        raise ValueError("glints_px and glints_visible differ in length")
+        raise d.error("glints_visible", f"{visible.size} entries for {glints.shape[0]} glints_px")
+    first, last = d.integer("first_row", lo=0, hi=_ROWS), d.integer("last_row", lo=0, hi=_ROWS)
     return StrobeLabel(
-        frame=int(d["frame"]), strobe=int(d["strobe"]), time_s=float(d["time_s"]),
-        pulse_start_s=float(d["pulse_start_s"]), first_row=int(d["first_row"]),
-        last_row=int(d["last_row"]), full_rows=(int(d["full_rows"][0]), int(d["full_rows"][1])),
-        target_m=_vec3(d["target_m"]), yaw_rad=float(d["yaw_rad"]),
-        pitch_rad=float(d["pitch_rad"]), cornea_center_m=_vec3(d["cornea_center_m"]),
+        frame=d.integer("frame", lo=0, hi=MAX_FRAMES), strobe=d.integer("strobe"),
+        time_s=d.number("time_s", lo=-_TIME_S, hi=_TIME_S),
+        pulse_start_s=d.number("pulse_start_s", lo=-_TIME_S, hi=_TIME_S), first_row=first,
+        last_row=last, full_rows=tuple(d.integers("full_rows", 2, lo=0, hi=_ROWS)),
+        target_m=d.array("target_m", (3,), lo=-_POSITION_M, hi=_POSITION_M),
+        yaw_rad=d.number("yaw_rad", lo=-math.pi, hi=math.pi),
+        pitch_rad=d.number("pitch_rad", lo=-math.pi, hi=math.pi),
+        cornea_center_m=d.array("cornea_center_m", (3,), lo=-_POSITION_M, hi=_POSITION_M),
         glints_px=glints, glints_visible=visible)

@@ -14,7 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from estimator.checks import Doc, load_json
 from estimator.formats import check_format
+from estimator.inputs import MAX_FRAMES
 from estimator.setup import Setup
 
 from ..render import SensorModel
@@ -30,6 +32,9 @@ from .format import (
 )
 
 # --------------------------------------------------------------------------- manifest
+
+#: Largest image side a manifest may claim (px).
+MAX_IMAGE_SIDE_PX = 16384
 
 
 def _manifest(setup: Setup, text: str, *, frames, spp, kind, seed, variant, cornea,
@@ -193,15 +198,24 @@ def read_manifest(path) -> dict:
     Raises
     ------
     DatasetError
-        Missing, unreadable, or another format or version.
+        Missing, unreadable, another format or version, or a field the readers use
+        (``frames``, ``image``, ``scene.toml``, ``seed``, ``trajectory``) of the wrong type or
+        range (:mod:`estimator.checks`; the message names the key).
     """
     path = Path(path)
     file = path if path.name == MANIFEST_NAME and path.is_file() else path / MANIFEST_NAME
-    try:
-        data = json.loads(file.read_bytes().decode("utf-8"))
-    except FileNotFoundError:
-        raise DatasetError(f"{file}: no such file; not a SCET dataset") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise DatasetError(f"{file}: cannot read the manifest ({exc})") from None
+    if not file.exists():
+        raise DatasetError(f"{file}: no such file; not a SCET dataset")
+    data = load_json(file, DatasetError)
     check_format(data, file, FORMAT, VERSION, DatasetError)
+    doc = Doc(data, file, error=DatasetError)
+    doc.integer("frames", lo=1, hi=MAX_FRAMES)
+    image = doc.obj("image")
+    for key in ("width_px", "height_px"):
+        image.integer(key, lo=1, hi=MAX_IMAGE_SIDE_PX)
+    if image.integer("png_bit_depth") not in (8, 16):
+        raise image.error("png_bit_depth", f"expected 8 or 16, got {image.data['png_bit_depth']}")
+    doc.obj("scene").string("toml")
+    doc.integer("seed", lo=0)
+    doc.string("trajectory")
     return data

@@ -21,12 +21,15 @@ order, and the manifest consistent with the folder (``scet dataset verify``).
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from estimator.errors import TrackerInputError
 from estimator.formats import frame_name
+from estimator.inputs import MAX_MISSING_FRAMES, read_frame
 
 from .format import FRAMES_DIR, LABELS_NAME, DatasetError
 from .jobs import frame_intact
@@ -41,20 +44,21 @@ class DatasetFrame:
     index: int
     labels: tuple
     folder: Path
+    size_px: tuple | None = None    # (W, H) from the manifest: frames of another size refused
 
     def counts(self) -> np.ndarray:
-        """(H, W) sensor counts (uint16 for bit depths above 8, else uint8) from the PNG."""
-        import cv2
-
+        """(H, W) sensor counts (uint16 for bit depths above 8, else uint8) from the PNG,
+        refused by its header when not of the manifest's size."""
         path = self.folder / FRAMES_DIR / frame_name(self.index, "png")
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        if img is None:
-            raise DatasetError(f"{path}: cannot read the frame")
-        return img
+        try:
+            return read_frame(path, self.size_px)
+        except TrackerInputError as exc:
+            raise DatasetError(str(exc)) from None
 
     def radiance(self) -> np.ndarray:
         """(H, W) float32 linear radiance from the EXR, as rendered."""
-        return read_exr(self.folder / FRAMES_DIR / frame_name(self.index, "exr")).radiance
+        return read_exr(self.folder / FRAMES_DIR / frame_name(self.index, "exr"),
+                        self.size_px).radiance
 
 
 class Dataset:
@@ -62,11 +66,13 @@ class Dataset:
 
     def __init__(self, folder):
         self.folder = Path(folder)
-        self.manifest = read_manifest(self.folder)
-        try:
-            self.frames = int(self.manifest["frames"])
-        except (KeyError, TypeError, ValueError):
-            raise DatasetError(f"{self.folder}/manifest.json: key 'frames' is not a count") from None
+        self.manifest = read_manifest(self.folder)  # typed and ranged
+        self.frames = int(self.manifest["frames"])
+        image = self.manifest["image"]
+        self.size_px = (int(image["width_px"]), int(image["height_px"]))
+        problem = _unbacked(self.folder, self.frames)
+        if problem:
+            raise DatasetError(problem)
         by_frame: dict[int, list] = {f: [] for f in range(self.frames)}
         for lb in iter_labels(self.folder):
             if lb.frame not in by_frame:
@@ -86,7 +92,7 @@ class Dataset:
             i += self.frames
         if not 0 <= i < self.frames:
             raise IndexError(f"frame {i} of a {self.frames}-frame dataset")
-        return DatasetFrame(i, self._labels[i], self.folder)
+        return DatasetFrame(i, self._labels[i], self.folder, self.size_px)
 
     def __iter__(self):
         return (self[i] for i in range(self.frames))
@@ -94,6 +100,21 @@ class Dataset:
     @property
     def n_labels(self) -> int:
         return sum(len(v) for v in self._labels.values())
+
+
+def _unbacked(folder: Path, frames: int) -> str | None:
+    """Why the manifest's frame count is not this folder's (more than
+    :data:`estimator.inputs.MAX_MISSING_FRAMES` of its frames absent), or None."""
+    frames_dir = folder / FRAMES_DIR
+    try:
+        with os.scandir(frames_dir) as it:
+            held = sum(1 for e in it if e.name.endswith(".png"))
+    except OSError:
+        held = 0
+    if frames - held > MAX_MISSING_FRAMES:
+        return (f"{folder}/manifest.json, key 'frames': claims {frames} frames, {frames_dir} holds "
+                f"{held}")
+    return None
 
 
 def open_dataset(folder) -> Dataset:
@@ -127,6 +148,9 @@ def verify_dataset(folder) -> list[str]:
     except (KeyError, TypeError, ValueError) as exc:
         return [f"{folder}/manifest.json: malformed ({exc!r})"]
     frames_dir = folder / FRAMES_DIR
+    unbacked = _unbacked(folder, frames)
+    if unbacked:  # a count the folder does not back is reported, not iterated
+        return [unbacked]
     bad = [f for f in range(frames) if not frame_intact(frames_dir, f, sha, shape)]
     if bad:
         problems.append(f"{frames_dir}: {len(bad)} of {frames} frames missing or damaged "

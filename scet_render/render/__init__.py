@@ -9,6 +9,7 @@ from .backend import (
     LLVM_MIN_VERSION,
     SUPPORTED_VARIANTS,
     VARIANT_ENV,
+    BackendUnavailableError,
     VariantChoice,
     activate,
     choose_variant,
@@ -64,7 +65,7 @@ from .sensor import (
 
 __all__ = [
     "LLVM_MIN_VERSION", "SUPPORTED_VARIANTS", "VARIANT_ENV", "LLVM_ENV", "DEFAULT_LLVM_GLOBS",
-    "VariantChoice", "llvm_version", "find_libllvm", "gpu_available", "choose_variant",
+    "VariantChoice", "BackendUnavailableError", "llvm_version", "find_libllvm", "gpu_available", "choose_variant",
     "activate", "is_jit_variant", "export_mitsuba", "DEFAULT_LIGHT_RADIANCE",
     "DEFAULT_AMBIENT_RADIANCE", "LID_CLEARANCE_M", "SKIN_OVER_LID_M", "LID_MARGIN_RAD",
     "PUPIL_OFFSET_M", "FACE_BEHIND_CENTER_M", "SCENE_UNITS_PER_M", "FILM_TO_OPENCV_PX",

@@ -26,7 +26,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Mapping, Sequence
 
+from estimator.errors import InputError
+
 log = logging.getLogger(__name__)
+
+
+class BackendUnavailableError(InputError):
+    """The Mitsuba variant asked for cannot run here (unknown, no GPU for a CUDA variant, no
+    usable libLLVM for an LLVM one, or Mitsuba refuses it)."""
 
 #: Oldest libLLVM that Dr.Jit 1.x runs on without crashing (LLVM 14/15 fail, DESIGN.md).
 LLVM_MIN_VERSION = 16
@@ -153,20 +160,25 @@ def choose_variant(variant: str | None = None, *, globs: Sequence[str] | None = 
 
     Raises
     ------
-    ValueError
-        For an unknown variant, or an LLVM variant asked for while no libLLVM >= 16 exists.
+    BackendUnavailableError
+        For an unknown variant, an LLVM variant asked for while no libLLVM >= 16 exists, or
+        the CUDA variant without a GPU.
     """
     env = os.environ if env is None else env
     requested = variant if variant is not None else env.get(VARIANT_ENV) or "auto"
     if requested != "auto" and requested not in SUPPORTED_VARIANTS:
-        raise ValueError(f"unknown Mitsuba variant {requested!r}: expected 'auto' or one of "
+        raise BackendUnavailableError(f"unknown Mitsuba variant {requested!r}: expected 'auto' or one of "
                          f"{', '.join(SUPPORTED_VARIANTS)}")
     llvm = find_libllvm(globs, env) if requested in ("auto", "llvm_ad_rgb") else None
     if requested == "llvm_ad_rgb":
         if llvm is None:
-            raise ValueError(f"variant llvm_ad_rgb needs libLLVM >= {LLVM_MIN_VERSION} (e.g. "
+            raise BackendUnavailableError(f"variant llvm_ad_rgb needs libLLVM >= {LLVM_MIN_VERSION} (e.g. "
                              f"apt-get install libllvm19, or set {LLVM_ENV}); none was found")
         return VariantChoice("llvm_ad_rgb", llvm, f"requested; libLLVM {llvm}")
+    if requested == "cuda_ad_rgb" and not (gpu_available() if gpu is None else gpu):
+        raise BackendUnavailableError("variant cuda_ad_rgb needs an NVIDIA GPU and its CUDA "
+                                      "driver library (libcuda); none was found: leave out "
+                                      "--variant, or ask for llvm_ad_rgb or scalar_rgb")
     if requested != "auto":
         return VariantChoice(requested, None, "requested")
     if gpu_available() if gpu is None else gpu:
@@ -204,7 +216,11 @@ def activate(variant: str | None = None):
     import mitsuba as mi
 
     if mi.variant() != choice.variant:
-        mi.set_variant(choice.variant)
+        try:
+            mi.set_variant(choice.variant)
+        except (ImportError, AttributeError, RuntimeError, ValueError) as exc:
+            raise BackendUnavailableError(f"Mitsuba cannot run variant {choice.variant} here "
+                                          f"({exc})") from None
     log.debug("Mitsuba variant %s (%s)", choice.variant, choice.reason)
     return mi
 

@@ -107,3 +107,45 @@ def test_score_refuses_a_folder_that_is_not_a_dataset(workflow, capsys):
     # The calibration folder has labels but no manifest: not a dataset with ground truth.
     assert main(["score", str(workflow / "samples_geometric.csv"), str(workflow / "calibration")]) == 2
     assert "manifest.json" in capsys.readouterr().err
+
+
+def test_a_3x3_calibration_fits_eq1_and_says_the_quadratic_was_skipped(workflow, capsys):
+    # The 3x3 pattern inside the 5x5 one: its corners, edge middles and centre.
+    src, sub = workflow / "calibration", workflow / "calibration_3x3"
+    labels = [json.loads(ln) for ln in (src / "labels.jsonl").read_text().splitlines()]
+    xs = sorted({lb["target_m"][0] for lb in labels})
+    ys = sorted({lb["target_m"][1] for lb in labels})
+    keep = {lb["frame"] for lb in labels if lb["target_m"][0] in xs[::2] and lb["target_m"][1] in ys[::2]}
+    assert len(keep) == 9
+    (sub / "frames").mkdir(parents=True)
+    for f in keep:
+        name = f"{f:06d}.png"
+        (sub / "frames" / name).write_bytes((src / "frames" / name).read_bytes())
+    (sub / "labels.jsonl").write_text("".join(json.dumps(lb) + "\n" for lb in labels if lb["frame"] in keep))
+    timing = json.loads((src / "timing.json").read_text())
+    timing["frames"] = {k: v for k, v in timing["frames"].items() if int(k) in keep}
+    (sub / "timing.json").write_text(json.dumps(timing))
+    out = workflow / "calibration_3x3.json"
+    assert main(["calibrate", str(sub), "--scene", str(workflow / "small.toml"), "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "mapping quadratic_9 skipped: the 'quadratic' mapping has 10 terms" in printed
+    assert "(fitted: eq1_9; recorded in" in printed
+    cal = json.loads(out.read_text())
+    assert sorted(cal["mappings"]) == ["eq1_9"] and sorted(cal["quality"]["mappings_skipped"]) == ["quadratic_9"]
+    assert main(["track", str(workflow / "test"), "--scene", str(workflow / "small.toml"), "--calibration",
+                 str(out), "--method", "polynomial", "--out", str(workflow / "samples_3x3.csv")]) == 0
+
+
+def test_outputs_that_are_inputs_are_refused(workflow, capsys):
+    cal = workflow / "calibration.json"
+    before = cal.read_bytes()
+    assert main(["track", str(workflow / "test"), "--scene", str(workflow / "small.toml"), "--calibration",
+                 str(cal), "--out", str(cal)]) == 2
+    assert f"{cal}: is one of the inputs" in capsys.readouterr().err and cal.read_bytes() == before
+    labels = workflow / "calibration" / "labels.jsonl"
+    assert main(["calibrate", str(workflow / "calibration"), "--scene", str(workflow / "small.toml"),
+                 "--out", str(labels)]) == 2
+    assert "is one of the inputs" in capsys.readouterr().err
+    assert main(["score", str(workflow / "samples_geometric.csv"), str(workflow / "test"), "--markdown",
+                 str(workflow / "samples_geometric.csv")]) == 2
+    assert "--markdown must name another file" in capsys.readouterr().err
