@@ -286,27 +286,12 @@ class TrackSummary:
         return len({s.frame_index for s in self.samples if s.reason.startswith(INTERNAL_ERROR)})
 
 
-def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "polynomial",
-                 mapping: str | None = None,
-                 progress: Callable[[int, int], None] | None = None) -> TrackSummary:
-    """Track every frame of a folder and write ``samples.csv`` atomically.
-
-    Parameters
-    ----------
-    folder : path
-        Frames and timing sidecar (or a rendered dataset's manifest).
-    setup : Setup
-    calibration : Calibration or path
-        A calibration, or the path of a calibration file.
-    out_csv : path
-        Written to ``<name>.partial`` and moved into place at the end: an existing file is
-        replaced only by a complete one.
-    method : {"polynomial", "geometric"}
-    mapping : str, optional
-        Polynomial mapping name; default the calibration's Eq. (1) mapping.
-    progress : callable, optional
-        ``progress(done, total)`` after every frame.
-    """
+def tracking_calibration(folder, calibration, out_csv, *, method: str = "polynomial",
+                         mapping: str | None = None) -> tuple[Calibration, str]:
+    """The checks of a folder run (:func:`track_folder`, :func:`estimator.live.track_following`)
+    before anything is read: ``out_csv`` must not be one of the inputs, and the calibration (or
+    its file, loaded) must hold what ``method`` needs; ``mapping`` defaults to the
+    calibration's Eq. (1) mapping. Returns the calibration and the mapping name."""
     inputs = input_files(folder)
     source = "the calibration"
     if not isinstance(calibration, Calibration):
@@ -328,25 +313,55 @@ def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "p
     if method == "geometric" and not calibration.has_orbit:
         raise TrackerInputError(f"{source}: no eye centre and orbit radius, which --method "
                                 "geometric needs")
+    return calibration, mapping or ""
+
+
+def track_frame(tracker: Tracker, frame: int, frame_start_s, image, error: str | None) -> list:
+    """One frame of a folder through ``tracker``: its samples; a frame that could not be read
+    (``error``, from :func:`iter_folder`) gives the frame's NaN samples with its reason and
+    resets the stream."""
+    if error is None:
+        return tracker.process(image, frame, frame_start_s)
+    log.warning("frame %d: %s", frame, error)
+    reason = frame_reason(error)
+    tracker.reset()
+    return [replace(s, reason=reason) for s in tracker.process(None, frame, frame_start_s)]
+
+
+def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "polynomial",
+                 mapping: str | None = None,
+                 progress: Callable[[int, int], None] | None = None) -> TrackSummary:
+    """Track every frame of a folder and write ``samples.csv`` atomically.
+
+    Parameters
+    ----------
+    folder : path
+        Frames and timing sidecar (or a rendered dataset's manifest).
+    setup : Setup
+    calibration : Calibration or path
+        A calibration, or the path of a calibration file.
+    out_csv : path
+        Written to ``<name>.partial`` and moved into place at the end: an existing file is
+        replaced only by a complete one.
+    method : {"polynomial", "geometric"}
+    mapping : str, optional
+        Polynomial mapping name; default the calibration's Eq. (1) mapping.
+    progress : callable, optional
+        ``progress(done, total)`` after every frame.
+    """
+    calibration, mapping = tracking_calibration(folder, calibration, out_csv, method=method,
+                                                mapping=mapping)
     timing = read_timing(folder, setup)
     # The frames were taken with the sidecar's exposure and strobe where it gives them.
     setup = timing.apply(setup)
-    tracker = Tracker(setup, calibration, method, mapping=mapping or "")
+    tracker = Tracker(setup, calibration, method, mapping=mapping)
     total = len(timing.frame_start_s)
     samples = []
     busy = 0.0
     for done, (f, t0, img, err) in enumerate(iter_folder(folder, setup, timing), start=1):
         t = time.perf_counter()
-        if err is not None:
-            log.warning("frame %d: %s", f, err)
-            reason = frame_reason(err)
-            tracker.reset()
-            out = tracker.process(None, f, t0)
-            out = [replace(s, reason=reason) for s in out]
-        else:
-            out = tracker.process(img, f, t0)
+        samples.extend(track_frame(tracker, f, t0, img, err))
         busy += time.perf_counter() - t
-        samples.extend(out)
         if progress is not None:
             progress(done, total)
     out_csv = Path(out_csv)

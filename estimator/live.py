@@ -22,7 +22,6 @@ from __future__ import annotations
 import logging
 import re
 import time
-from dataclasses import replace
 from pathlib import Path
 from typing import Callable, Iterator
 
@@ -32,14 +31,13 @@ from .formats import FRAMES_DIR, MANIFEST_NAME, TIMING_NAME, read_json
 from .folders import (
     TrackSummary,
     frame_path,
-    load_calibration,
     read_frame,
     read_timing,
+    track_frame,
+    tracking_calibration,
     write_samples_csv,
 )
-from .calibration import Calibration
 from .setup import Setup
-from .inputs import frame_reason, input_files, refuse_overwriting_inputs
 from .tracker import Tracker, TrackerInputError
 
 log = logging.getLogger(__name__)
@@ -130,28 +128,16 @@ def track_following(folder, setup: Setup, calibration, out_csv, *, method: str =
     ``samples.csv`` when it ends; ``progress(done, total)`` after every frame (total: the
     frames so far, or a dataset's count). Other arguments as
     :func:`estimator.folders.track_folder`; ``wait`` goes to :func:`follow_frames`."""
-    inputs = input_files(folder) + ([] if isinstance(calibration, Calibration) else [calibration])
-    refuse_overwriting_inputs(out_csv, inputs)
-    if not isinstance(calibration, Calibration):
-        calibration = load_calibration(calibration)
-    if mapping is None:
-        eq1 = sorted(k for k in calibration.mappings if k.startswith("eq1"))
-        mapping = eq1[-1] if eq1 else next(iter(calibration.mappings), "eq1_25")
+    calibration, mapping = tracking_calibration(folder, calibration, out_csv, method=method,
+                                                mapping=mapping)
     tracker = Tracker(setup, calibration, method, mapping=mapping)
     expected = _expected_frames(Path(folder))
     samples, done, busy = [], 0, 0.0
     for f, t0, img, err in follow_frames(folder, setup, timeout_s=timeout_s, poll_s=poll_s,
                                          **wait):
         t = time.perf_counter()
-        if err is not None:
-            log.warning("frame %d: %s", f, err)
-            reason = frame_reason(err)
-            tracker.reset()
-            out = [replace(s, reason=reason) for s in tracker.process(None, f, t0)]
-        else:
-            out = tracker.process(img, f, t0)
+        samples.extend(track_frame(tracker, f, t0, img, err))
         busy += time.perf_counter() - t
-        samples.extend(out)
         done += 1
         if progress is not None:
             progress(done, max(done, expected or 0))
