@@ -35,17 +35,17 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+# The tests' ground-truth calibration (tests/estimator/simulated.py).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench_glints import moving_sequence  # noqa: E402
 
 import estimator.matching.follow as follow_module  # noqa: E402
 import estimator.tracker as tracker_module  # noqa: E402
-from estimator.calibration import Calibration, fit_gaze_mapping  # noqa: E402
 from estimator.folders import iter_folder  # noqa: E402
-from estimator.gaze import fit_cornea_centers  # noqa: E402
 from estimator.glints import GlintDetections, GlintDetector  # noqa: E402
 from estimator.scene import load_scene  # noqa: E402
 from estimator.tracker import Tracker  # noqa: E402
-from scet_render.simulate import ground_truth_glints  # noqa: E402
+from tests.estimator.simulated import ground_truth_calibration  # noqa: E402
 
 #: A Raspberry Pi 3B+ core against this kind of x86 core: 15x slower, 10-30x the range
 #: (../shared/HARDWARE.md Sec. 12: Quake/Doom single-thread times of a Pi 2 and a Core
@@ -53,15 +53,6 @@ from scet_render.simulate import ground_truth_glints  # noqa: E402
 PI_FACTOR, PI_RANGE = 15.0, (10.0, 30.0)
 PI_SOURCE = "shared/HARDWARE.md Sec. 12 (planning rule: x86 single-thread time x 15, 10-30)"
 STAGES = ("detect", "group", "predict", "assign", "fit", "map", "search", "other")
-
-
-def ground_truth_calibration(setup) -> Calibration:
-    targets = setup.screen.grid(5, 5, margin=0.0)
-    yaw, pitch = setup.eye.angles_toward(targets)
-    g, vis, _ = ground_truth_glints(setup, yaw, pitch)
-    cal = Calibration.ground_truth(setup)
-    c = fit_cornea_centers(setup, cal, np.where(vis[..., None], g, np.nan)).center_m
-    return cal.with_mappings(eq1_25=fit_gaze_mapping(c, targets, "eq1", degenerate="min_norm"))
 
 
 def synthetic_frames(setup, n: int, rng):

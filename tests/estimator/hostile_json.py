@@ -25,14 +25,16 @@ SPLICES = st.sampled_from(["[" * 100_000, "{\"a\":" * 50_000, "1" + "0" * 5000, 
     | st.text(max_size=12)
 
 
-def _nodes(node, path=()):
+def tree_nodes(node, path=()):
+    """(path, value) of every node under a parsed document ``node``, the root excluded."""
     items = node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list) else ()
     for k, v in items:
         yield path + (k,), v
-        yield from _nodes(v, path + (k,))
+        yield from tree_nodes(v, path + (k,))
 
 
-def _parent(doc, path):
+def parent_of(doc, path):
+    """The container that holds the node at ``path``."""
     for k in path[:-1]:
         doc = doc[k]
     return doc
@@ -42,7 +44,7 @@ def mutated(data, doc: dict) -> dict:
     """``doc`` after one to four random edits drawn from ``data`` (a hypothesis data object)."""
     doc = copy.deepcopy(doc)
     for _ in range(data.draw(st.integers(1, 4), label="edits")):
-        nodes = list(_nodes(doc))
+        nodes = list(tree_nodes(doc))
         op = data.draw(st.sampled_from(["poke", "poke", "replace", "scale", "delete", "add"]),
                        label="op")
         if not nodes:
@@ -53,7 +55,7 @@ def mutated(data, doc: dict) -> dict:
             target[data.draw(st.text(max_size=10), label="key")] = data.draw(VALUES, label="value")
             continue
         path, value = data.draw(st.sampled_from(nodes), label="node")
-        parent = _parent(doc, path)
+        parent = parent_of(doc, path)
         if op == "delete":
             del parent[path[-1]]
         elif op == "scale" and type(value) in (int, float) and abs(value) < 1e300:

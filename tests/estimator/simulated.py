@@ -94,3 +94,18 @@ def screen_targets(spec: str, setup: Setup) -> np.ndarray:
     if m.group(1) == "calib":
         return setup.screen.grid(cols, rows, margin=0.0)
     return setup.screen.grid(cols, rows)
+
+
+def ground_truth_calibration(setup: Setup):
+    """The calibration a perfect procedure gives (nominal lighting, the eye's own c_e and r_co),
+    with the Eq. (1) mapping ``eq1_25`` fitted to the noise-free cornea centres of the 5 x 5
+    calibration pattern: what the tracker tests and bench_tracker track with."""
+    from estimator.calibration import Calibration, fit_gaze_mapping
+    from estimator.gaze import fit_cornea_centers
+
+    targets = setup.screen.grid(5, 5, margin=0.0)
+    yaw, pitch = setup.eye.angles_toward(targets)
+    g, vis, _ = ground_truth_glints(setup, yaw, pitch)
+    cal = Calibration.ground_truth(setup)
+    c = fit_cornea_centers(setup, cal, np.where(vis[..., None], g, np.nan)).center_m
+    return cal.with_mappings(eq1_25=fit_gaze_mapping(c, targets, "eq1", degenerate="min_norm"))

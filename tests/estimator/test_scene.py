@@ -22,6 +22,7 @@ from hypothesis import strategies as st
 from estimator.errors import SceneError
 from estimator.scene import builtin_scenes, load_scene, parse_scene
 from estimator.setup import Setup
+from tests.estimator.hostile_json import parent_of, tree_nodes
 
 SCENES_DIR = Path(__file__).resolve().parents[2] / "scenes"
 PAPER_SIM = (SCENES_DIR / "paper_sim.toml").read_text(encoding="utf-8")
@@ -557,31 +558,17 @@ toml_values = st.recursive(
 )
 
 
-def _nodes(node, path=()):
-    """(path, value) of every node under ``node``, the root excluded."""
-    items = node.items() if isinstance(node, dict) else enumerate(node) if isinstance(node, list) else ()
-    for k, v in items:
-        yield path + (k,), v
-        yield from _nodes(v, path + (k,))
-
-
-def _parent(doc, path):
-    for k in path[:-1]:
-        doc = doc[k]
-    return doc
-
-
 def mutated_scene(data) -> dict:
     """paper_sim.toml as a dict, after one to four random edits drawn from ``data``."""
     doc = scene_dict()
     for _ in range(data.draw(st.integers(1, 4), label="mutations")):
-        nodes = list(_nodes(doc))
+        nodes = list(tree_nodes(doc))
         op = data.draw(st.sampled_from(["replace", "scale", "delete", "add", "poke", "poke"]), label="op")
         numbers = [(p, v) for p, v in nodes if type(v) in (int, float)]
         if op == "poke" and numbers:
             # The values that break arithmetic, put where a number is expected.
             path, _ = data.draw(st.sampled_from(numbers), label="number")
-            _parent(doc, path)[path[-1]] = data.draw(hazards, label="hazard")
+            parent_of(doc, path)[path[-1]] = data.draw(hazards, label="hazard")
             continue
         if not nodes:
             op = "add"
@@ -591,7 +578,7 @@ def mutated_scene(data) -> dict:
             target[data.draw(toml_keys, label="key")] = data.draw(toml_values, label="value")
             continue
         path, value = data.draw(st.sampled_from(nodes), label="node")
-        parent = _parent(doc, path)
+        parent = parent_of(doc, path)
         if op == "delete":
             del parent[path[-1]]
         elif op == "scale" and type(value) in (int, float) and abs(value) < 1e300:

@@ -12,14 +12,13 @@ import numpy as np
 import pytest
 
 from estimator.banding import band_layout, row_pulse_weights
-from estimator.calibration import Calibration, fit_gaze_mapping
-from estimator.gaze import fit_cornea_centers
+from estimator.calibration import Calibration
 from estimator.scene import load_scene
 from estimator.folders import (load_calibration, read_samples_csv, read_timing,
                                save_calibration, timing_document, track_folder)
 from estimator.tracker import (INTERNAL_ERROR, SATURATED_FRAME, UNREADABLE_FRAME,
                                WRONG_FRAME_SIZE, BandPrior, Tracker, TrackerInputError)
-from tests.estimator.simulated import ground_truth_glints
+from tests.estimator.simulated import ground_truth_calibration, ground_truth_glints
 
 DT = None
 
@@ -31,13 +30,7 @@ def setup():
 
 @pytest.fixture(scope="module")
 def calibration(setup):
-    targets = setup.screen.grid(5, 5, margin=0.0)
-    yaw, pitch = setup.eye.angles_toward(targets)
-    g, vis, _ = ground_truth_glints(setup, yaw, pitch)
-    g = np.where(vis[..., None], g, np.nan)
-    cal = Calibration.ground_truth(setup)
-    c = fit_cornea_centers(setup, cal, g).center_m
-    return cal.with_mappings(eq1_25=fit_gaze_mapping(c, targets, "eq1", degenerate="min_norm"))
+    return ground_truth_calibration(setup)
 
 
 def draw_frame(setup, frame, yaw, pitch, rng, hide=()):

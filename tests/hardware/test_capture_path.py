@@ -9,7 +9,8 @@ import cv2
 import numpy as np
 import pytest
 
-from estimator.calibration import Calibration
+from tests.estimator.simulated import ground_truth_calibration
+
 from estimator.capture import CaptureFolder
 from estimator.folders import track_folder
 from estimator.scene import load_scene
@@ -46,18 +47,7 @@ def dataset(tmp_path_factory, setup):
 
 @pytest.fixture(scope="module")
 def calibration(setup):
-    # The ground-truth calibration with an Eq. (1) mapping, as tests/estimator/test_tracker.py.
-    from estimator.calibration import fit_gaze_mapping
-    from estimator.gaze import fit_cornea_centers
-    from scet_render.simulate import ground_truth_glints
-
-    targets = setup.screen.grid(5, 5, margin=0.0)
-    yaw, pitch = setup.eye.angles_toward(targets)
-    g, vis, _ = ground_truth_glints(setup, yaw, pitch)
-    g = np.where(vis[..., None], g, np.nan)
-    cal = Calibration.ground_truth(setup)
-    c = fit_cornea_centers(setup, cal, g).center_m
-    return cal.with_mappings(eq1_25=fit_gaze_mapping(c, targets, "eq1", degenerate="min_norm"))
+    return ground_truth_calibration(setup)
 
 
 @pytest.mark.parametrize("fmt", ["SGBRG10_CSI2P", "SGBRG10"])
