@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from estimator.errors import TrackerInputError
-from estimator.formats import atomic_write, frame_name
+from estimator.formats import atomic_write, frame_name, remove_partials
 from estimator.inputs import read_frame
 from estimator.setup import Setup
 
@@ -168,7 +168,11 @@ def commit_manifest(plan: DatasetPlan, variant: str, renderer_settings: dict,
 
 def finalize_dataset(plan: DatasetPlan, trajectory, labels: dict) -> RenderSummary:
     """Step 3: ``labels.jsonl`` from the labels of the frames rendered now (``labels``: frame ->
-    list of dict) and those computed for the frames found done."""
+    list of dict) and those computed for the frames found done. Every writer has finished by
+    now, so the temporaries of any that died mid-write (a killed worker whose task was
+    retried elsewhere) are swept: the folder holds the dataset and nothing else."""
+    for folder in (plan.out, plan.frames_dir):
+        remove_partials(folder)
     lines = [json.dumps(label, allow_nan=False, separators=(",", ":"))
              for f in range(plan.frames)
              for label in (labels[f] if f in labels else frame_labels(plan.setup, trajectory, f))]

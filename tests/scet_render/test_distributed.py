@@ -61,6 +61,21 @@ def test_a_killed_worker_is_restarted_and_the_dataset_is_the_same(dataset, small
     assert tree_digest(out) == tree_digest(dataset)
 
 
+def test_a_dead_writers_temporary_is_swept_at_the_end(dataset, small, tmp_path):
+    """A worker killed mid-write leaves its unique temporary behind (its task is retried by
+    another writer under another name); the finished folder holds the dataset alone."""
+    out = tmp_path / "litter"
+    shutil.copytree(dataset, out)
+    (out / "frames" / "000002.png").unlink()
+
+    def die_mid_write(done, total):
+        if done == 2:  # the finished frames counted; before the missing one is rendered
+            (out / "frames" / "000002.png.ab12345-6-7.partial").write_bytes(b"half a frame")
+
+    render_dataset(small, out, progress=die_mid_write, **KWARGS)
+    assert tree_digest(out) == tree_digest(dataset)
+
+
 def test_a_finished_dataset_needs_no_worker(dataset, tmp_path, small):
     out = tmp_path / "copy"
     shutil.copytree(dataset, out)
