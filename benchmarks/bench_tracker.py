@@ -8,14 +8,19 @@ or with ``--dataset DIR`` the PNG frames of a rendered dataset. Detection is tim
 :class:`estimator.glints.GlintDetector` (one pass over the frames as a stream, after a warm-up
 pass that loads its compiled kernels). End to end, :meth:`estimator.tracker.Tracker.process`
 (detect, group by strobe, predict, assign, fit, map), both gaze methods, ``cheap=False`` (the
-hypothesis search on every band: the path before issue 15) and ``cheap=True`` alternated over
-``--rounds`` rounds on the same frames (the machine's speed drifts: ratios are per round):
+hypothesis search on every band: the path before issue 15), ``cheap=True`` with the matcher's
+numpy steps (:mod:`estimator.matching.kernels` off: as on an install without Numba) and
+``cheap=True`` alternated over ``--rounds`` rounds on the same frames (the machine's speed
+drifts: ratios are per round):
 samples/s (every lit band is a sample, NaN or not), per-frame latency p50/p99 (frame in, its
 samples out), whether both give the same samples (reasons, identities, estimates to 1e-6 m),
 where each band's microseconds go on the cheap path, and the estimated Raspberry Pi 3B+ figure.
 Usage:
 
-    python benchmarks/bench_tracker.py [--frames 24] [--rounds 3] [--dataset DIR]
+    python benchmarks/bench_tracker.py [--frames 60] [--rounds 3] [--dataset DIR]
+
+60 frames are one second of video: a stream's first cold search and the searches after
+saccades that cross a frame gap weigh in as in a longer run.
 """
 
 from __future__ import annotations
@@ -40,6 +45,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench_glints import moving_sequence  # noqa: E402
 
 import estimator.matching.follow as follow_module  # noqa: E402
+import estimator.matching.kernels as match_kernels  # noqa: E402
 import estimator.tracker as tracker_module  # noqa: E402
 from estimator.folders import iter_folder  # noqa: E402
 from estimator.glints import GlintDetections, GlintDetector  # noqa: E402
@@ -52,6 +58,8 @@ from tests.estimator.simulated import ground_truth_calibration  # noqa: E402
 #: i3-3220, Pi 3B+ / Pi 2 ratios, desktop / Ivy Bridge ratios; SIMD-bound numpy 15-30x).
 PI_FACTOR, PI_RANGE = 15.0, (10.0, 30.0)
 PI_SOURCE = "shared/HARDWARE.md Sec. 12 (planning rule: x86 single-thread time x 15, 10-30)"
+#: Whether the matcher's compiled steps run (Numba installed, JIT on).
+KERNELS = match_kernels.ENABLED
 STAGES = ("detect", "group", "predict", "assign", "fit", "map", "search", "other")
 
 
@@ -134,7 +142,7 @@ def breakdown(setup, cal, method, frames) -> dict:
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=24)
+    ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--dataset", type=Path, default=None)
     args = ap.parse_args(argv)
@@ -169,23 +177,31 @@ def main(argv=None):
     for method in ("polynomial", "geometric"):
         for cheap in (False, True):  # compile the cheap path's kernels before timing
             run(Tracker(setup, cal, method, cheap=cheap), frames[:3])
-        rates = {False: [], True: []}
-        lats = {False: [], True: []}
-        agree, counts = True, None
+        rates = {False: [], True: [], "numpy": []}
+        lats = {False: [], True: [], "numpy": []}
+        agree, agree_numpy, counts = True, True, None
         for _ in range(args.rounds):
             out = {}
-            for cheap in (False, True):
-                tr = Tracker(setup, cal, method, cheap=cheap)
-                samples, lat = run(tr, frames)
+            for cheap in (False, True, "numpy"):
+                # "numpy": the cheap path with the matcher's numpy steps (no matching kernels).
+                match_kernels.ENABLED = cheap != "numpy" and KERNELS
+                try:
+                    tr = Tracker(setup, cal, method, cheap=bool(cheap))
+                    samples, lat = run(tr, frames)
+                finally:
+                    match_kernels.ENABLED = KERNELS
                 rates[cheap].append(len(samples) / lat.sum())
                 lats[cheap].append(lat)
                 out[cheap] = samples
-                if cheap:
+                if cheap is True:
                     counts = dict(tr.counts)
             agree &= same(out[False], out[True])
+            agree_numpy &= same(out["numpy"], out[True])
             ok = sum(s.ok for s in out[True])
         ratio = np.array(rates[True]) / np.array(rates[False])
-        for cheap, name in ((False, "search every band"), (True, "cheap path")):
+        ratio_numpy = np.array(rates[True]) / np.array(rates["numpy"])
+        for cheap, name in ((False, "search every band"), ("numpy", "cheap path, numpy matcher"),
+                            (True, "cheap path")):
             r, lat = np.array(rates[cheap]), np.concatenate(lats[cheap]) * 1e3
             print(f"tracker {method}, {name}: {np.median(r):.0f} samples/s "
                   f"(rounds {r.min():.0f}-{r.max():.0f}), latency p50 {np.percentile(lat, 50):.2f} ms, "
@@ -193,6 +209,10 @@ def main(argv=None):
         print(f"  cheap / search: {np.median(ratio):.1f}x (rounds {ratio.min():.1f}-{ratio.max():.1f}); "
               f"bands: {counts['cheap']} cheap, {counts['search']} searched; {ok}/{len(out[True])} "
               f"samples estimated; same samples: {'yes' if agree else 'NO'}")
+        print(f"  matching kernels / numpy matcher: {np.median(ratio_numpy):.2f}x (rounds "
+              f"{ratio_numpy.min():.2f}-{ratio_numpy.max():.2f}); same samples: "
+              f"{'yes' if agree_numpy else 'NO'}"
+              + ("" if KERNELS else " (Numba is not installed: both run numpy)"))
         b = breakdown(setup, cal, method, frames)
         per = {s: 1e6 * b[s] / b["samples"] for s in STAGES}
         print("  us per band (cheap path): " + ", ".join(f"{s} {per[s]:.0f}" for s in STAGES)

@@ -39,15 +39,19 @@ from dataclasses import replace
 
 import numpy as np
 
-from .banding import band_layout, strobe_instant
+import estimator.matching.kernels as match_kernels
+
+from .banding import band_rows, strobe_instant
 from .calibration import Calibration
 from .cornea import fit_covariance, fit_small
 from .eye import gaze_direction
 from .gaze import (
+    ANGLE_BOUND_RAD,
     calibrated_problems,
     geometric_gaze,
     polynomial_gaze,
     posterior_covariance,
+    prior_information,
     screen_intersection,
 )
 from .glints import NO_BAND, DetectionParams, GlintDetections, GlintDetector
@@ -207,13 +211,14 @@ class Tracker:
         frame_index = int(frame_index)
         sensor, strobe = self.setup.sensor, self.setup.strobe
         shift = 0.0 if frame_start_s is None else float(frame_start_s) - frame_index * sensor.frame_period_s
-        bands = [b for b in band_layout(sensor, strobe, frame_index) if b.visible]
-        times = [strobe_instant(b.strobe_time_s, strobe.pulse_s) + shift for b in bands]
+        pulses, starts, first, last = band_rows(sensor, strobe, frame_index)
+        bands = [(int(j), (int(a), int(b))) for j, a, b in zip(pulses, first, last)]
+        times = (strobe_instant(starts, strobe.pulse_s) + shift).tolist()
         try:
             reason = self._check(frame)
             if reason is not None:
                 self.reset()
-                return [failed_sample(frame_index, b.pulse_index, t, reason) for b, t in zip(bands, times)]
+                return [failed_sample(frame_index, j, t, reason) for (j, _), t in zip(bands, times)]
             det = self._detector(frame, frame_index)
             det = det.select(~det.has(NO_BAND))
             return [self._band(det, b, t) for b, t in zip(bands, times)]
@@ -222,8 +227,8 @@ class Tracker:
             log.error("frame %d: internal error %s: %s; its samples are NaN (%s)", frame_index,
                       type(exc).__name__, exc, INTERNAL_ERROR, exc_info=True)
             self.reset()
-            return [failed_sample(frame_index, b.pulse_index, t, f"{INTERNAL_ERROR}:{type(exc).__name__}")
-                    for b, t in zip(bands, times)]
+            return [failed_sample(frame_index, j, t, f"{INTERNAL_ERROR}:{type(exc).__name__}")
+                    for (j, _), t in zip(bands, times)]
 
     def _check(self, frame) -> str | None:
         if frame is None:
@@ -232,14 +237,15 @@ class Tracker:
         if a.shape != (self.setup.camera.height_px, self.setup.camera.width_px):
             return WRONG_FRAME_SIZE
         full = 255 if a.dtype == np.uint8 else 2 ** self.setup.sensor.bit_depth - 1
-        if np.count_nonzero(a >= full) > SATURATED_FRAME_SHARE * a.size:
+        # The maximum first: a frame without a full-scale pixel (the common case) is not counted.
+        if a.max() >= full and np.count_nonzero(a >= full) > SATURATED_FRAME_SHARE * a.size:
             return SATURATED_FRAME
         return None
 
     def _band(self, det: GlintDetections, band, time_s: float) -> GazeSample:
-        f, j = det.frame_index, band.pulse_index
+        """The sample of one band: ``band`` is (pulse index, (first row, last row))."""
+        f, (j, rows) = det.frame_index, band
         g = det.of_strobe(j).glints_px
-        rows = (band.first_row, band.last_row)
         if g.shape[0] < MIN_GLINTS:
             sample = failed_sample(f, j, time_s, "match_too_few_glints", g)
         else:
@@ -362,24 +368,57 @@ class Tracker:
         used = match.matched
         lights = match.light_index[used]
         glints = self._glints(g[used], lights)
-        prior = dict(prior_mean_rad=mean, prior_cov_rad2=cov, noise_px=self.prior.noise_px,
-                     problems=self._problems)
-        if self.method == "polynomial":
-            est = polynomial_gaze(self.setup, self.calibration, glints, mapping=self.mapping,
-                                  **prior)
+        quick = self._assisted_fit(g[used], lights, mean, cov) if self.follower else None
+        if quick is not None:
+            xy, center, angles, rms = quick
         else:
-            est = geometric_gaze(self.setup, self.calibration, glints, **prior)
-        reason = self._reason(est)
-        if reason != "ok":
-            return failed_sample(f, j, time_s, PRIOR_PREFIX + reason, g[used], lights)
-        angles = est.angles_rad[0]
+            prior = dict(prior_mean_rad=mean, prior_cov_rad2=cov, noise_px=self.prior.noise_px,
+                         problems=self._problems)
+            if self.method == "polynomial":
+                est = polynomial_gaze(self.setup, self.calibration, glints, mapping=self.mapping,
+                                      **prior)
+            else:
+                est = geometric_gaze(self.setup, self.calibration, glints, **prior)
+            reason = self._reason(est)
+            if reason != "ok":
+                return failed_sample(f, j, time_s, PRIOR_PREFIX + reason, g[used], lights)
+            xy, center, angles = est.screen_xy_m[0], est.cornea_center_m[0], est.angles_rad[0]
+            rms = float(est.rms_px[0])
         post = posterior_covariance(self._orbit, angles, np.isfinite(glints[..., 0]), cov,
                                     self.prior.noise_px)[0]
         self._set_state(time_s, angles, post)
         self._prior_angles = angles.copy()
-        return GazeSample(f, j, time_s, est.screen_xy_m[0].copy(), est.cornea_center_m[0].copy(),
-                          g[used], lights, float(est.rms_px[0]), "ok",
+        return GazeSample(f, j, time_s, xy.copy(), center.copy(), g[used], lights, rms, "ok",
                           match.confidence[used].copy(), prior_assisted=True)
+
+    def _assisted_fit(self, glints_px, lights, mean, cov):
+        """A prior-assisted band's estimate by the compiled small fit with the prior (the
+        orbit fit with the prior that both gaze methods make, from the prior's mean, as
+        :func:`estimator.gaze.geometric_gaze`): (screen point, cornea centre, angles, RMS),
+        or None where it does not give an accepted estimate (the batched fit then decides,
+        and names the failure)."""
+        if not match_kernels.ENABLED:
+            return None
+        orbit = self._problems.orbit
+        info = prior_information(cov, self.prior.noise_px)[0]
+        if not np.isfinite(info).all():
+            return None
+        fit = fit_small(orbit, glints_px, orbit.lights_world_m[lights], mean, model="orbit",
+                        arrays=self.follower.arrays, prior_mean=mean, prior_information=info)
+        if not (fit.ok and fit.rms_px <= MAX_RESIDUAL_PX
+                and np.abs(fit.x).max() < ANGLE_BOUND_RAD):
+            return None
+        axis = gaze_direction(fit.x[0], fit.x[1])
+        center = orbit.eye_center_m + orbit.orbit_radius_m * axis
+        if self.method == "polynomial":
+            xy = self._map.predict(center[None])[0]
+        else:
+            point, hits = screen_intersection(self.calibration.eye_center_m, axis[None],
+                                              self.setup.screen.z_m)
+            xy = point[0, :2] if hits[0] else np.full(2, np.nan)
+        if not np.isfinite(xy).all():
+            return None
+        return np.asarray(xy, dtype=np.float64), center, fit.x, float(fit.rms_px)
 
     def _set_state(self, time_s: float, angles_rad, cov) -> None:
         """Keep a sample's time, rotation and covariance (the prior of the next bands), and the

@@ -315,3 +315,26 @@ def band_layout(sensor: Sensor, strobe: Strobe, frame_index: int = 0) -> list[Ba
             )
         )
     return bands
+
+
+def band_rows(sensor: Sensor, strobe: Strobe, frame_index: int = 0
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The visible bands of frame ``frame_index`` as arrays: what a tracker needs of
+    :func:`band_layout` (the same pulses and rows), without its per-band light shares.
+
+    Returns
+    -------
+    pulse_index : (B,) int64
+        Global pulse index j of every band that lights a visible row, increasing.
+    pulse_start_s : (B,) float
+        s_j.
+    first_row, last_row : (B,) int64
+        ``Band.first_row`` and ``Band.last_row``: first and last rows with nonzero weight,
+        clipped to the frame's S lines.
+    """
+    j, s, z = _frame_pulses(sensor, strobe, frame_index)
+    first, last = z["first"], z["last"]
+    visible = (first <= sensor.visible_lines - 1) & (last >= 0)
+    return (j[visible], s[visible], np.maximum(first[visible], 0),
+            np.minimum(last[visible], sensor.total_lines - 1))
+

@@ -94,8 +94,21 @@ def _solve(A, b, out):
     return True
 
 
+def _prior_cost(x, pm, P):
+    """(x - μ)ᵀ Λ (x - μ) (px²); 0 without a prior (Λ = 0)."""
+    p = x.shape[0]
+    cost = 0.0
+    for a in range(p):
+        for b in range(p):
+            cost += (x[a] - pm[a]) * P[a, b] * (x[b] - pm[b])
+    return cost
+
+
 def _lm(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_iter, xtol, h,
-        x, JtJ):
+        pm, P, x, JtJ):
+    """Levenberg-Marquardt from x0 on the glints' squared residuals plus the prior's
+    (x - pm)ᵀ P (x - pm) (P = 0: none); x and the glints' JᵀJ at it are written out. Returns
+    the glints' share of the cost, the iterations and whether it converged."""
     cam = (R, O, intr, size)
     k, p = glints.shape[0], x0.shape[0]
     g = np.empty((k, 2))
@@ -111,7 +124,8 @@ def _lm(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_iter, 
     x_new = np.empty(p)
     for j in range(p):
         x[j] = x0[j]
-    cost = _residuals(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res)
+    cost = (_residuals(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res)
+            + _prior_cost(x, pm, P))
     lam = 1e-6
     iters = 0
     converged = False
@@ -131,6 +145,8 @@ def _lm(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_iter, 
             s = 0.0
             for i in range(2 * k):
                 s += J[i, a] * res[i]
+            for b in range(p):
+                s += P[a, b] * (x[b] - pm[b])
             Jtr[a] = s
             for b in range(p):
                 s = 0.0
@@ -142,13 +158,13 @@ def _lm(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_iter, 
         while lam <= 1e12:
             for a in range(p):
                 for b in range(p):
-                    A[a, b] = JtJ[a, b]
-                A[a, a] += lam * max(JtJ[a, a], 1e-30)
+                    A[a, b] = JtJ[a, b] + P[a, b]
+                A[a, a] += lam * max(JtJ[a, a] + P[a, a], 1e-30)
             if _solve(A, Jtr, step):
                 for j in range(p):
                     x_new[j] = x[j] - step[j]
-                cost_new = _residuals(cam, model, x_new, ce, rco, radius, lights, glints, g,
-                                      vis, c, res_p)
+                cost_new = (_residuals(cam, model, x_new, ce, rco, radius, lights, glints, g,
+                                       vis, c, res_p) + _prior_cost(x_new, pm, P))
                 if math.isfinite(cost_new) and cost_new <= cost:
                     accepted = True
                     break
@@ -167,7 +183,7 @@ def _lm(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_iter, 
         if small:
             converged = True
             break
-    return cost, iters, converged
+    return cost - _prior_cost(x, pm, P), iters, converged
 
 
 if compiled.ENABLED:
@@ -175,11 +191,13 @@ if compiled.ENABLED:
     _centre = _jit(_centre)
     _residuals = _jit(_residuals)
     _solve = _jit(_solve)
+    _prior_cost = _jit(_prior_cost)
     _lm = _jit(_lm)
 
 
 def fit_small(problem: FitProblem, glints_px, lights_world_m, x0, *, model: str,
-              max_iter: int = 50, arrays=None) -> SmallFit:
+              max_iter: int = 50, arrays=None, prior_mean=None,
+              prior_information=None) -> SmallFit:
     """Fit one sample's identified glints (k, 2) of lights (k, 3) from ``x0``.
 
     Parameters
@@ -194,6 +212,10 @@ def fit_small(problem: FitProblem, glints_px, lights_world_m, x0, *, model: str,
     model : {"orbit", "center"}
     arrays : tuple, optional
         :func:`estimator.geometry.compiled.camera_arrays` of the problem's camera.
+    prior_mean : (p,) float, optional
+    prior_information : (p, p) float, optional
+        A Gaussian prior on the parameters, as :func:`estimator.cornea.fit_cornea`'s: the
+        cost gains (x - μ)ᵀ Λ (x - μ) (px²). The RMS residual and JᵀJ are the glints' alone.
     """
     if model not in ("orbit", "center"):
         raise ValueError(f"model must be 'orbit' or 'center', got {model!r}")
@@ -201,11 +223,22 @@ def fit_small(problem: FitProblem, glints_px, lights_world_m, x0, *, model: str,
     g = np.ascontiguousarray(glints_px, dtype=np.float64).reshape(-1, 2)
     L = np.ascontiguousarray(lights_world_m, dtype=np.float64).reshape(-1, 3)
     x0 = np.asarray(x0, dtype=np.float64).reshape(p)
-    if g.shape[0] != L.shape[0] or 2 * g.shape[0] < p:
-        raise ValueError(f"need as many glints as lights and >= {p} coordinates, got "
-                         f"{g.shape[0]} glints and {L.shape[0]} lights")
+    if (prior_mean is None) != (prior_information is None):
+        raise ValueError("prior_mean and prior_information must be given together")
+    has_prior = prior_mean is not None
+    if has_prior:
+        pm = np.asarray(prior_mean, dtype=np.float64).reshape(p)
+        P = np.ascontiguousarray(prior_information, dtype=np.float64).reshape(p, p)
+        if not (np.isfinite(pm).all() and np.isfinite(P).all()):
+            raise ValueError("prior_mean and prior_information must be finite")
+    else:
+        pm, P = np.zeros(p), np.zeros((p, p))
+    if g.shape[0] != L.shape[0] or (2 * g.shape[0] < p and not has_prior) or g.shape[0] < 1:
+        raise ValueError(f"need as many glints as lights and >= {p} coordinates (or a prior), "
+                         f"got {g.shape[0]} glints and {L.shape[0]} lights")
     if not compiled.ENABLED:
-        return _fit_numpy(problem, g, L, x0, model, max_iter)
+        return _fit_numpy(problem, g, L, x0, model, max_iter,
+                          (pm, P) if has_prior else (None, None))
     if model == "orbit":
         ce, rco, h = problem.eye_center_m, float(problem.orbit_radius_m), _H_RAD
         xtol = _XTOL_M / rco
@@ -216,16 +249,18 @@ def fit_small(problem: FitProblem, glints_px, lights_world_m, x0, *, model: str,
     JtJ = np.zeros((p, p))
     cost, iters, converged = _lm(R, O, intr, size, 1 if model == "orbit" else 0, x0,
                                  np.asarray(ce, dtype=np.float64), rco,
-                                 problem.cornea_radius_m, L, g, max_iter, xtol, h, x, JtJ)
+                                 problem.cornea_radius_m, L, g, max_iter, xtol, h, pm, P, x,
+                                 JtJ)
     ok = bool(converged and np.isfinite(x).all() and math.isfinite(cost))
     return SmallFit(x, math.sqrt(max(cost, 0.0) / g.shape[0]) if ok else math.nan, JtJ,
                     int(iters), ok)
 
 
-def _fit_numpy(problem, g, L, x0, model, max_iter) -> SmallFit:
+def _fit_numpy(problem, g, L, x0, model, max_iter, prior) -> SmallFit:
     """:func:`fit_small` through :func:`fit_cornea` (no Numba)."""
     sub = replace(problem, lights_world_m=L)
-    fit = fit_cornea(sub, g[None], None, x0, model=model, max_iter=max_iter)
+    fit = fit_cornea(sub, g[None], None, x0, model=model, max_iter=max_iter,
+                     prior_mean=prior[0], prior_information=prior[1])
     x = (fit.angles_rad if model == "orbit" else fit.center_m)[0]
     ok = bool(fit.ok[0] and np.isfinite(x).all())
     JtJ = np.full((x0.size, x0.size), np.nan)

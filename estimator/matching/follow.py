@@ -39,6 +39,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+import estimator.matching.kernels as kernels
+
 from ..cornea import SmallFit, fit_small
 from ..geometry import camera_arrays, glints_one_pose
 from .matcher import GlintMatcher
@@ -182,6 +184,11 @@ class BandFollower:
         dy = (self.predict((x[0] + h, x[1]))[0] - self.predict((x[0] - h, x[1]))[0]) / (2 * h)
         dp = (self.predict((x[0], x[1] + h))[0] - self.predict((x[0], x[1] - h))[0]) / (2 * h)
         J = np.stack([dy, dp], axis=-1)  # (n, 2, 2) px / rad
+        if kernels.ENABLED:
+            return kernels.rival_margin(g, assign, pred, J, vis, self._shifted, x, prior, lo, hi,
+                                        p.gate_px, p.band_margin_px, p.noise_px,
+                                        p.unmatched_cost, p.missing_cost,
+                                        math.radians(p.prior_sigma_deg), weight, score)
         finite = vis & np.isfinite(J).all(axis=(1, 2)) & np.isfinite(pred).all(axis=1)
         A = np.where(assign >= 0, self._shifted[np.maximum(assign, 0)].T, -1)  # (4, k) lights
         use = A >= 0

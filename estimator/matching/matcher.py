@@ -51,6 +51,8 @@ from dataclasses import replace
 
 import numpy as np
 
+import estimator.matching.kernels as kernels
+
 from ..calibration import Calibration
 from ..cornea import FitProblem
 from ..eye import fick_angles, gaze_direction
@@ -368,6 +370,11 @@ class GlintMatcher(HypothesisSearch):
         # Confidence: residual, margin to the second-best assignment, hypothesis margin.
         conf = np.zeros(k)
         lights = np.flatnonzero(h.cand)
+        c_hyp = 1.0 if math.isinf(margin) else math.tanh(max(margin, 0.0) / 4.0)
+        if kernels.ENABLED:
+            kernels.confidences(g, h.assign, h.residual, h.pred, lights, p.gate_px, c_hyp, conf)
+            return GlintMatch(h.assign.copy(), conf, h.residual.copy(), center, angles, rms,
+                              h.score, margin, h.iterations, reason)
         d_all = np.sqrt(((g[:, None, :] - h.pred[None, lights, :]) ** 2).sum(-1))  # (k, m)
         det = np.flatnonzero(matched)
         own = np.searchsorted(lights, h.assign[det])
@@ -380,7 +387,6 @@ class GlintMatcher(HypothesisSearch):
                         other_det.min(axis=0, initial=np.inf))
         c_res = np.clip(1.0 - r / p.gate_px, 0.0, 1.0)
         c_alt = np.clip((d2 - r) / p.gate_px, 0.0, 1.0)
-        c_hyp = 1.0 if math.isinf(margin) else math.tanh(max(margin, 0.0) / 4.0)
         conf[det] = c_res * c_alt * c_hyp
         return GlintMatch(h.assign.copy(), conf, h.residual.copy(), center, angles, rms,
                           h.score, margin, h.iterations, reason)

@@ -13,6 +13,8 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+import estimator.matching.kernels as kernels
+
 from ..cornea import fit_cornea
 from .model import _Hypothesis
 
@@ -40,6 +42,12 @@ class HypothesisSearch:
         grid nodes where ``nodes`` is True)."""
         p = self.params
         pred, vis = self.grid_glints_px, self.grid_visible
+        if kernels.ENABLED:
+            score = np.empty(vis.shape[0])
+            kernels.coarse_scores(pred, vis, np.ones(vis.shape[0], dtype=bool) if nodes is None
+                                  else nodes, g, lo, hi, p.band_margin_px, p.coarse_gate_px ** 2,
+                                  p.unmatched_cost, p.missing_cost, score)
+            return self._minima(g, score, count)
         v = pred[..., 1]
         cand = vis & (v >= lo - p.band_margin_px) & (v <= hi + p.band_margin_px)
         if nodes is not None:
@@ -67,6 +75,11 @@ class HypothesisSearch:
         unmatched_cost = p.unmatched_cost
         score = np.full(n_nodes, np.inf)
         score[used] = near.sum(axis=1) / gate2 * unmatched_cost + p.missing_cost * missing
+        return self._minima(g, score, count)
+
+    def _minima(self, g, score, count) -> list[np.ndarray]:
+        """Angles of the ``count`` best local minima of the grid's scores (N,)."""
+        unmatched_cost = self.params.unmatched_cost
         score = score.reshape(self._grid_shape)
         # Local minima over 3x3 neighbourhoods, best first; a node no better than leaving
         # every detection unmatched is no hypothesis.
@@ -87,8 +100,26 @@ class HypothesisSearch:
         dist = np.full(k, np.nan)
         if lights.size == 0:
             return assign, dist
-        d2 = ((g[:, None, :] - pred[None, lights, :]) ** 2).sum(-1)
         gate2 = gate * gate
+        # Where no two detections share their nearest candidate inside the gate, that choice
+        # is the optimal assignment (each detection pays its own least cost, a lower bound of
+        # every assignment; the unmatched option costs the gate, no less than an inside one):
+        # the common case of a band, answered without the solver.
+        if kernels.ENABLED:
+            if kernels.nearest_assign(g, pred, lights, gate2, assign, dist):
+                return assign, dist
+            assign[:], dist[:] = -1, np.nan
+            d2 = ((g[:, None, :] - pred[None, lights, :]) ** 2).sum(-1)
+        else:
+            d2 = ((g[:, None, :] - pred[None, lights, :]) ** 2).sum(-1)
+            near = np.where(d2 <= gate2, d2, np.inf)
+            best = near.argmin(axis=1)
+            best_d2 = near[np.arange(k), best]
+            has = best_d2 < np.inf
+            if not has.any() or np.bincount(best[has]).max() <= 1:
+                assign[has] = lights[best[has]]
+                dist[has] = np.sqrt(best_d2[has])
+                return assign, dist
         big = 1e6 * gate2
         # Columns: the candidates, then one "unmatched" option per detection at the gate's cost.
         cost = np.full((k, lights.size + k), big)
@@ -217,6 +248,9 @@ class HypothesisSearch:
     def _enforce_order(self, g, pred, assign):
         """Drop matches that break the lights' order along their arc (module docstring, 3)."""
         assign = assign.copy()
+        if kernels.ENABLED:
+            kernels.enforce_order(g, pred, assign, self.group)
+            return assign
         for _ in range(assign.size):
             det = np.flatnonzero(assign >= 0)
             if det.size < 2:

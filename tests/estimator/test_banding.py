@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from estimator.banding import layout as banding
-from estimator.banding import NO_PULSE, TIME_EPS_S, band_drift_rows, band_gap_rows, band_height, band_layout, band_spacing_rows, exposure_start, first_lit_row, partial_lines, plan_strobe, pulse_times, readout_time, row_pulse_weights, row_strobe, tiling_period, usable_lines
+from estimator.banding import NO_PULSE, TIME_EPS_S, band_drift_rows, band_gap_rows, band_height, band_layout, band_rows, band_spacing_rows, exposure_start, first_lit_row, partial_lines, plan_strobe, pulse_times, readout_time, row_pulse_weights, row_strobe, tiling_period, usable_lines
 from estimator.setup import Sensor, Strobe
 
 # --------------------------------------------------------------------------- tolerances
@@ -211,6 +211,28 @@ def test_random_layout_matches_eqs_5_to_7(exposure_s, pulse_s, extra_period_s, p
     sensor = with_exposure(PROTO_SENSOR, exposure_s)
     strobe = Strobe(8, pulse_s, pulse_s + extra_period_s, phase_s)
     _check_layout_against_equations(sensor, strobe, f)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    exposure_s=st.floats(20e-6, 8e-3),
+    pulse_s=st.floats(20e-6, 1e-3),
+    extra_period_s=st.floats(0.3e-3, 3e-3),
+    phase_s=st.floats(-20e-3, 20e-3),
+    f=st.integers(0, 400),
+)
+def test_band_rows_are_the_visible_bands_of_the_layout(exposure_s, pulse_s, extra_period_s,
+                                                        phase_s, f):
+    # The tracker's array form must be the layout's visible bands exactly (same pulses, same
+    # integer rows): it replaced band_layout in the tracker's per-frame loop.
+    sensor = with_exposure(PROTO_SENSOR, exposure_s)
+    strobe = Strobe(8, pulse_s, pulse_s + extra_period_s, phase_s)
+    bands = [b for b in band_layout(sensor, strobe, f) if b.visible]
+    j, s, first, last = band_rows(sensor, strobe, f)
+    assert j.tolist() == [b.pulse_index for b in bands]
+    assert s.tolist() == [b.strobe_time_s for b in bands]
+    assert first.tolist() == [b.first_row for b in bands]
+    assert last.tolist() == [b.last_row for b in bands]
 
 
 # --------------------------------------------------------------------------- closed-form weights

@@ -100,3 +100,41 @@ def test_cheap_path_declines_a_prior_two_lights_off(setup, calibration):  # noqa
     det = g[inband] + np.random.default_rng(0).normal(0, 0.2, (inband.sum(), 2))
     assert fo.follow(det, rows, truth + np.radians([0.2, 0.1])) is not None
     assert fo.follow(det, rows, truth + np.radians([2.0, 0.0])) is None
+
+
+def test_the_small_fit_with_a_prior_reaches_fit_cornea_map(setup, calibration):  # noqa: F811
+    """With a Gaussian prior on the angles (a sparse band's 1-3 glints, as the tracker's
+    prior-assisted bands): the same maximum a posteriori rotation as the batched fit."""
+    from dataclasses import replace
+    orbit = calibrated_problems(setup, calibration).orbit
+    rng = np.random.default_rng(8)
+    eye = setup.eye
+    checked = 0
+    for _ in range(30):
+        a = rng.uniform(-0.3, 0.3, 2)
+        g, vis = project_glints(setup.camera, eye.cornea_center(*a), eye.cornea_radius_m,
+                                orbit.lights_world_m)
+        sel = rng.choice(np.flatnonzero(vis), rng.integers(1, 4), replace=False)
+        glints = g[sel] + rng.normal(0.0, 0.4, (sel.size, 2))
+        mean = a + rng.normal(0, 0.004, 2)
+        info = 0.5 ** 2 * np.linalg.inv(np.diag([0.005, 0.008]) ** 2)
+        ours = fit_small(orbit, glints, orbit.lights_world_m[sel], mean, model="orbit",
+                         prior_mean=mean, prior_information=info)
+        ref = fit_cornea(replace(orbit, lights_world_m=orbit.lights_world_m[sel]),
+                         glints[None], None, mean, model="orbit", prior_mean=mean,
+                         prior_information=info)
+        assert ours.ok and ref.ok[0]
+        # As without a prior: both within ~1e-9 m of the same minimum (r_co ~ 1 cm per rad).
+        assert np.abs(ours.x - ref.angles_rad[0]).max() * eye.cornea_offset_m < 5e-9
+        # fit_cornea's last Gauss-Newton step reports its linearised cost: 1e-5 px of RMS,
+        # against the 0.1 px that would matter (MAX_RESIDUAL_PX is 2 px).
+        assert abs(ours.rms_px - ref.rms_px[0]) < 1e-5
+        checked += 1
+    assert checked == 30
+
+
+def test_the_small_fit_refuses_a_half_given_prior(setup, calibration):  # noqa: F811
+    orbit = calibrated_problems(setup, calibration).orbit
+    with pytest.raises(ValueError, match="together"):
+        fit_small(orbit, np.zeros((3, 2)), orbit.lights_world_m[:3], np.zeros(2),
+                  model="orbit", prior_mean=np.zeros(2))
