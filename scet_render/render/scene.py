@@ -45,6 +45,7 @@ from estimator.eye import eye_rotation_matrix
 from estimator.geometry import Camera
 from estimator.setup import Setup
 
+from .cornea_bsdf import CORNEA_BSDF_TYPE, REFLECT_PROBABILITY, register_cornea_bsdf
 from .layout import (
     FACE_BEHIND_CENTER_M,
     FILM_TO_OPENCV_PX,
@@ -118,13 +119,16 @@ def _diffuse(albedo: float, twosided: bool = False) -> dict:
 def _cornea_bsdf(setup: Setup, options: SceneOptions) -> dict:
     n = setup.eye.refractive_index
     if options.cornea == "conductor":
-        # A mirror scaled by the normal-incidence Fresnel reflectance: exact glint geometry
-        # from every sample (a dielectric reflects only ~2.5 % of them).
-        f0 = ((n - 1.0) / (n + 1.0)) ** 2
-        return {"type": "conductor", "material": "none", "specular_reflectance": _rgb([f0] * 3)}
-    transmit = (0.0, 1.0, 1.0) if options.channels == "split" else (1.0, 1.0, 1.0)
-    return {"type": "dielectric", "int_ior": n, "ext_ior": 1.0,
-            "specular_transmittance": _rgb(transmit)}
+        # A mirror with the dielectric's Fresnel reflectance (a conductor with eta = n, k = 0):
+        # exact glint geometry from every sample, no refraction (the iris is seen unrefracted).
+        return {"type": "conductor", "material": "none", "eta": _rgb([n] * 3),
+                "k": _rgb([0.0] * 3)}
+    transmit = [0.0, 1.0, 1.0] if options.channels == "split" else [1.0, 1.0, 1.0]
+    if options.cornea == "plain_dielectric":
+        return {"type": "dielectric", "int_ior": n, "ext_ior": 1.0,
+                "specular_transmittance": _rgb(transmit)}
+    return {"type": CORNEA_BSDF_TYPE, "int_ior": n, "ext_ior": 1.0,
+            "reflect_probability": REFLECT_PROBABILITY, "transmittance": transmit}
 
 
 @dataclass(frozen=True, slots=True)
@@ -260,6 +264,7 @@ class EyeScene:
 
             mi = activate()
         self.mi, self.setup, self.options = mi, setup, options
+        register_cornea_bsdf(mi)
         desc = describe_scene(setup, options, spp=spp)
         self.layout = desc.layout
         self.scene = mi.load_dict(_to_mitsuba(desc.objects, mi, desc))
