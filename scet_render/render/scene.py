@@ -119,10 +119,13 @@ def _diffuse(albedo: float, twosided: bool = False) -> dict:
 def _cornea_bsdf(setup: Setup, options: SceneOptions) -> dict:
     n = setup.eye.refractive_index
     if options.cornea == "conductor":
-        # A mirror with the dielectric's Fresnel reflectance (a conductor with eta = n, k = 0):
-        # exact glint geometry from every sample, no refraction (the iris is seen unrefracted).
-        return {"type": "conductor", "material": "none", "eta": _rgb([n] * 3),
-                "k": _rgb([0.0] * 3)}
+        # A mirror scaled by the normal-incidence Fresnel reflectance: exact glint geometry
+        # from every sample. Its glints are dimmer than the dielectric's F(theta) (32 % at
+        # paper_sim's glints); a conductor with eta = n, k = 0 has the dielectric's Fresnel, but
+        # the sensor's default exposure (sensor.DEFAULT_ELECTRONS_PER_RADIANCE) is tuned on F0
+        # and would clip glints beyond ~41 deg incidence: both change together (issue 14).
+        f0 = ((n - 1.0) / (n + 1.0)) ** 2
+        return {"type": "conductor", "material": "none", "specular_reflectance": _rgb([f0] * 3)}
     transmit = [0.0, 1.0, 1.0] if options.channels == "split" else [1.0, 1.0, 1.0]
     if options.cornea == "plain_dielectric":
         return {"type": "dielectric", "int_ior": n, "ext_ior": 1.0,

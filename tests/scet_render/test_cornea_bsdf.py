@@ -94,7 +94,7 @@ def test_split_channels_zero_the_strobe_transmittance(mi):
     np.testing.assert_allclose(w_r[0], w_r[1], rtol=REL)
 
 
-def test_default_scene_uses_it_and_conductor_has_the_fresnel():
+def test_default_scene_uses_it():
     from estimator.scene import load_scene
     from scet_render.render.scene import describe_scene
 
@@ -103,13 +103,11 @@ def test_default_scene_uses_it_and_conductor_has_the_fresnel():
     assert cornea["type"] == CORNEA_BSDF_TYPE and cornea["transmittance"] == [0.0, 1.0, 1.0]
     grey = describe_scene(setup, SceneOptions(channels="grey")).objects["cornea"]["bsdf"]
     assert grey["transmittance"] == [1.0, 1.0, 1.0]
-    cond = describe_scene(setup, SceneOptions(cornea="conductor")).objects["cornea"]["bsdf"]
-    assert cond["eta"]["value"] == [N] * 3 and cond["k"]["value"] == [0.0] * 3
 
 
 def test_conductor_reflects_the_dielectrics_fresnel(mi):
-    """The conductor option (eta = n, k = 0) reflects F(theta) of the dielectric (it rendered
-    glints 32 % dimmer with an F0-scaled mirror)."""
+    """Mitsuba's conductor with eta = n, k = 0 reflects F(theta) of the dielectric: the fix
+    for the conductor option once the sensor's exposure is retuned (see scene._cornea_bsdf)."""
     theta = np.radians([0.0, 30.0, 45.0, 55.0, 70.0])
     _, w, *_ = _sample(mi, {"type": "conductor", "eta": N, "k": 0.0}, theta, np.full(5, 0.5))
     np.testing.assert_allclose(w[0], fresnel_dielectric(np.cos(theta), N), rtol=1e-4)
