@@ -43,7 +43,7 @@ def main() -> None:
     ap.add_argument("--scene", default="paper_sim")
     ap.add_argument("--spp", type=int, default=16)
     ap.add_argument("--frames", type=int, default=3, help="timed frames per motion")
-    ap.add_argument("--cornea", default="dielectric", choices=("dielectric", "conductor"))
+    ap.add_argument("--cornea", default="dielectric", choices=("dielectric", "plain_dielectric", "conductor"))
     ap.add_argument("--variant", default=None)
     args = ap.parse_args()
     setup = load_scene(args.scene)

@@ -284,7 +284,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--yaw-deg", type=finite(-90.0, 90.0), default=0.0, help="eye yaw (Fick, degrees, + toward +x)")
     p.add_argument("--pitch-deg", type=finite(-90.0, 90.0), default=0.0, help="eye pitch (Fick, degrees, + up)")
     p.add_argument("--spp", type=integer(1, MAX_SPP), default=64)
-    p.add_argument("--cornea", choices=("dielectric", "conductor"), default="dielectric")
+    p.add_argument("--cornea", choices=("dielectric", "plain_dielectric", "conductor"),
+                   default="dielectric")
     p.set_defaults(func=cmd_export_mitsuba)
 
     p = sub.add_parser("calibrate", help="calibrate from a folder of single-pulse calibration frames")

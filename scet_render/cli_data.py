@@ -143,7 +143,8 @@ def add_render_parser(sub, scene_help: str) -> None:
     p.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
     p.add_argument("--variant", help="Mitsuba variant (default: llvm_ad_rgb when libLLVM >= 16 is found, "
                                      "else scalar_rgb)")
-    p.add_argument("--cornea", choices=("dielectric", "conductor"), default="dielectric")
+    p.add_argument("--cornea", choices=("dielectric", "plain_dielectric", "conductor"),
+                   default="dielectric")
     p.add_argument("--raw", nargs="?", const="SGBRG10_CSI2P", metavar="FORMAT",
                    help="also write the frames as the OV5647 reads them out (SGBRG10_CSI2P, the "
                         "default, or SGBRG10), with capture.json, so they read as a capture")

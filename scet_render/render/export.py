@@ -1,5 +1,9 @@
 """``scet export-mitsuba``: a scene description written as Mitsuba XML with its
 meshes and textures, renderable unchanged by ``mitsuba scene.xml``.
+
+Mitsuba's ``mitsuba`` command cannot load Python plugins, so the renderer's cornea BSDF
+(:mod:`~scet_render.render.cornea_bsdf`) is written as Mitsuba's own ``dielectric``: the same
+interface and the same image in the limit of many samples, its glints noisier at low spp.
 """
 
 from __future__ import annotations
@@ -12,6 +16,7 @@ import numpy as np
 from estimator.formats import atomic_write
 from estimator.setup import Setup
 
+from .cornea_bsdf import CORNEA_BSDF_TYPE
 from .layout import SceneOptions
 from .scene import describe_scene
 
@@ -53,6 +58,12 @@ def _xml_node(parent, key, value):
         raise ValueError(f"cannot write scene entry {key!r} = {value!r} as Mitsuba XML")
 
 
+def _plain_dielectric(bsdf: dict) -> dict:
+    """Mitsuba's ``dielectric`` with the interface of a :data:`CORNEA_BSDF_TYPE` entry."""
+    return {"type": "dielectric", "int_ior": bsdf["int_ior"], "ext_ior": bsdf["ext_ior"],
+            "specular_transmittance": {"type": "rgb", "value": list(bsdf["transmittance"])}}
+
+
 def export_mitsuba(setup: Setup, out_dir: str | Path, options: SceneOptions | None = None, *,
                    yaw_rad: float = 0.0, pitch_rad: float = 0.0, spp: int = 64) -> Path:
     """Write ``scene.xml``, ``meshes/*.ply`` and ``textures/*.png`` that ``mitsuba scene.xml``
@@ -92,6 +103,14 @@ def export_mitsuba(setup: Setup, out_dir: str | Path, options: SceneOptions | No
     root = ET.Element("scene", version="3.0.0")
     for key, value in desc.objects.items():
         if key != "type":
+            bsdf = value.get("bsdf") if isinstance(value, dict) else None
+            if isinstance(bsdf, dict) and bsdf.get("type") == CORNEA_BSDF_TYPE:
+                root.append(ET.Comment(
+                    f" {key}: SCET's cornea BSDF ({CORNEA_BSDF_TYPE}, reflection sampled with "
+                    f"probability {bsdf['reflect_probability']:g}) is a Python plugin that the "
+                    "mitsuba command cannot load: written as Mitsuba's dielectric (same image "
+                    "in the limit, glints noisier at low spp) "))
+                value = {**value, "bsdf": _plain_dielectric(bsdf)}
             _xml_node(root, key, value)
     ET.indent(root)
     path = out / "scene.xml"

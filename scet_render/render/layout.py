@@ -37,7 +37,11 @@ SCENE_UNITS_PER_M = 100.0
 FILM_TO_OPENCV_PX = -0.5
 #: Rows of the sclera's opacity mask over the polar angle 0..pi: 0.022 deg, 4 µm on the eyeball.
 SCLERA_MASK_TEXELS = 8192
-CORNEA_MODES = ("dielectric", "conductor")
+#: ``dielectric``: the physically correct cornea, its glints sampled by
+#: :mod:`~scet_render.render.cornea_bsdf` (the default); ``plain_dielectric``: Mitsuba's own
+#: ``dielectric`` (same image in the limit, glints noisy at low spp); ``conductor``: a mirror with
+#: the dielectric's Fresnel reflectance and no refraction.
+CORNEA_MODES = ("dielectric", "plain_dielectric", "conductor")
 CORNEA_GEOMETRIES = ("sphere", "mesh")
 CHANNEL_MODES = ("split", "grey")
 #: Scene parameters moved by :meth:`EyeScene.set_pose`.

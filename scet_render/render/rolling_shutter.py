@@ -227,7 +227,7 @@ class BandedRenderer:
         Mitsuba variant (:func:`scet_render.render.backend.choose_variant`); default: the best found.
     spp : int
         Samples per pixel of the strobe renders.
-    cornea : {"dielectric", "conductor"}
+    cornea : {"dielectric", "plain_dielectric", "conductor"}
         Corneal material (:class:`scet_render.render.scene.SceneOptions`).
     eyelid_openness : float or None
         1 = fully open (the cornea is never covered for gazes at the screen), 0 = closed,

@@ -45,6 +45,7 @@ from estimator.eye import eye_rotation_matrix
 from estimator.geometry import Camera
 from estimator.setup import Setup
 
+from .cornea_bsdf import CORNEA_BSDF_TYPE, REFLECT_PROBABILITY, register_cornea_bsdf
 from .layout import (
     FACE_BEHIND_CENTER_M,
     FILM_TO_OPENCV_PX,
@@ -119,12 +120,18 @@ def _cornea_bsdf(setup: Setup, options: SceneOptions) -> dict:
     n = setup.eye.refractive_index
     if options.cornea == "conductor":
         # A mirror scaled by the normal-incidence Fresnel reflectance: exact glint geometry
-        # from every sample (a dielectric reflects only ~2.5 % of them).
+        # from every sample. Its glints are dimmer than the dielectric's F(theta) (32 % at
+        # paper_sim's glints); a conductor with eta = n, k = 0 has the dielectric's Fresnel, but
+        # the sensor's default exposure (sensor.DEFAULT_ELECTRONS_PER_RADIANCE) is tuned on F0
+        # and would clip glints beyond ~41 deg incidence: both change together (issue 14).
         f0 = ((n - 1.0) / (n + 1.0)) ** 2
         return {"type": "conductor", "material": "none", "specular_reflectance": _rgb([f0] * 3)}
-    transmit = (0.0, 1.0, 1.0) if options.channels == "split" else (1.0, 1.0, 1.0)
-    return {"type": "dielectric", "int_ior": n, "ext_ior": 1.0,
-            "specular_transmittance": _rgb(transmit)}
+    transmit = [0.0, 1.0, 1.0] if options.channels == "split" else [1.0, 1.0, 1.0]
+    if options.cornea == "plain_dielectric":
+        return {"type": "dielectric", "int_ior": n, "ext_ior": 1.0,
+                "specular_transmittance": _rgb(transmit)}
+    return {"type": CORNEA_BSDF_TYPE, "int_ior": n, "ext_ior": 1.0,
+            "reflect_probability": REFLECT_PROBABILITY, "transmittance": transmit}
 
 
 @dataclass(frozen=True, slots=True)
@@ -260,6 +267,7 @@ class EyeScene:
 
             mi = activate()
         self.mi, self.setup, self.options = mi, setup, options
+        register_cornea_bsdf(mi)
         desc = describe_scene(setup, options, spp=spp)
         self.layout = desc.layout
         self.scene = mi.load_dict(_to_mitsuba(desc.objects, mi, desc))

@@ -16,9 +16,11 @@ order a CMOS pixel does it:
    radiance is itself a free choice, so the default (:data:`DEFAULT_ELECTRONS_PER_RADIANCE`)
    is set the way a prototype is tuned: the *expected* radiance of a glint of the default scene
    (emitter radiance times the cornea's Fresnel reflectance) lands at 70 % of the saturation
-   level. A dielectric cornea rendered at low spp reflects each camera sample with probability
-   ~2.5 %, so its glint pixels are 0 or at least L_e / spp: single pixels then clip until the
-   spp reaches a few hundred; the conductor cornea renders the expected value directly.
+   level. Mitsuba's own dielectric (``plain_dielectric``) rendered at low spp reflects each
+   camera sample with probability ~2.5 %, so its glint pixels are 0 or at least L_e / spp:
+   single pixels then clip until the spp reaches a few hundred. The default cornea samples
+   reflection with probability 0.75 (weight F / 0.75) and the conductor renders F directly,
+   so their glint pixels are near the expected value.
 2. **Photon shot noise and dark current shot noise.** n ~ Poisson(mu).
 3. **Full well.** n = min(n, ``full_well_e``): the photodiode holds no more charge.
 4. **Read noise.** v = n + N(0, ``read_noise_e``^2), input referred, in electrons.

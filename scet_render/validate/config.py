@@ -16,9 +16,10 @@ from estimator.calibration import Calibration
 #: is the labelled glint nearest to it and lies within this distance (px at full size, 640 x
 #: 480; halved at half size): identity, not centroid accuracy. The closest neighbouring glints
 #: of paper_sim are 5.7 px apart; rendered centroids sit within ~0.3 px of their glint on a
-#: conductor cornea, but a dielectric cornea at 16 spp renders each glint as a few clipped
-#: Monte Carlo pixels (a 2.5 % reflection sampled per camera ray; :mod:`scet_render.render.sensor`)
-#: whose centroid is up to ~2 px off (median 0.9 px, measured on the full validation).
+#: conductor cornea or the default dielectric; Mitsuba's own dielectric (plain_dielectric) at
+#: 16 spp renders each glint as a few clipped Monte Carlo pixels (a 2.5 % reflection sampled
+#: per camera ray; :mod:`scet_render.render.sensor`) whose centroid is up to ~2 px off (median
+#: 0.9 px, measured on the full validation before the default cornea sampled its glints).
 IDENTITY_RADIUS_PX = 3.0
 
 

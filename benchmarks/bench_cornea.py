@@ -1,0 +1,205 @@
+"""The cornea materials side by side: glint centroids, cost, bias (issue 14, part A).
+
+Materials: ``plain_dielectric`` (Mitsuba's own), ``dielectric`` (the default: the
+:mod:`scet_render.render.cornea_bsdf` plugin, reflection sampled with p = 0.75 from outside),
+``conductor`` (a mirror with the dielectric's Fresnel). One run prints four tables:
+
+1. glint centroid error against the closed form (``ground_truth_glints``, i.e.
+   ``project_glints``) at the scene's full size, ``--spp`` samples, strobe light only, over
+   several eye poses (isolated visible glints; intensity-weighted centroid in a 9x9 window);
+2. render cost of a whole frame, new vs plain dielectric, alternated, ``--repeats`` times each;
+3. bias: region means (iris, pupil, sclera, skin; pixels classified by casting each pixel
+   centre's ray, refracted once at the cornea) and glint energies of the new material at
+   ``--spp`` against Mitsuba's dielectric at ``--ref-spp``, each over ``--seeds`` seeds, with the
+   standard error of the difference (seed scatter);
+4. ``max_depth`` 6 vs 12: the iris's mean ambient radiance with the new material.
+
+Usage::
+
+    python benchmarks/bench_cornea.py [--scene paper_sim] [--spp 16] [--ref-spp 256]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from estimator.scene import load_scene
+from scet_render.render import BandedRenderer
+from scet_render.render.layout import SceneOptions
+from scet_render.simulate import ground_truth_glints
+
+POSES = [(0.0, 0.0), (0.2, -0.12), (-0.15, 0.1), (0.1, 0.15)]
+HALF_PX = 4
+MIN_SPACING_PX = 7.0
+REGIONS = ("iris", "pupil", "sclera", "skin")
+
+
+def centroids(img, pred_px, all_px):
+    """Intensity-weighted centroids and energies of the glints predicted at ``pred_px``
+    (window pixels nearest to their own glint, background the border median, < 5 % of the
+    peak dropped)."""
+    h = HALF_PX
+    out, energy = np.full(pred_px.shape, np.nan), np.full(len(pred_px), np.nan)
+    for i, (u, v) in enumerate(pred_px):
+        x0, y0 = int(round(u)), int(round(v))
+        if not (h <= x0 < img.shape[1] - h and h <= y0 < img.shape[0] - h):
+            continue
+        yy, xx = np.mgrid[y0 - h:y0 + h + 1, x0 - h:x0 + h + 1]
+        win = img[y0 - h:y0 + h + 1, x0 - h:x0 + h + 1].astype(np.float64)
+        border = np.concatenate([win[0], win[-1], win[1:-1, 0], win[1:-1, -1]])
+        d = np.hypot(xx[..., None] - all_px[:, 0], yy[..., None] - all_px[:, 1])
+        own = d.min(axis=-1) >= np.hypot(xx - u, yy - v) - 1e-9
+        w = np.where(own, np.clip(win - np.median(border), 0.0, None), 0.0)
+        energy[i] = w.sum()
+        w[w < 0.05 * w.max()] = 0.0
+        if w.sum() > 0:
+            out[i] = [(w * xx).sum() / w.sum(), (w * yy).sum() / w.sum()]
+    return out, energy
+
+
+def isolated(g, vis):
+    gg = np.where(vis[:, None], g, np.inf)
+    d = np.linalg.norm(gg[:, None] - gg[None], axis=-1)
+    np.fill_diagonal(d, np.inf)
+    return vis & (d.min(axis=1) > MIN_SPACING_PX)
+
+
+def region_labels(renderer, yaw_rad, pitch_rad) -> np.ndarray:
+    """(H, W) index into REGIONS (-1: other) of what each pixel centre sees at an eye pose:
+    through the cornea by one refraction, past the sclera sphere's cap inside the limbus (cut
+    away by its opacity mask, which ``ray_intersect`` does not see)."""
+    mi = renderer.mi
+    import drjit as dr
+
+    from estimator.eye import eye_rotation_matrix
+
+    es, cam = renderer.eye_scene, renderer.setup.camera
+    es.set_pose(yaw_rad, pitch_rad)
+    W, H = cam.width_px, cam.height_px
+    idx = np.arange(W * H)
+    film = mi.Point2f(mi.Float((idx % W + 0.5) / W), mi.Float((idx // W + 0.5) / H))
+    ray, _ = es.sensor.sample_ray(0.0, 0.5, film, mi.Point2f(0.5, 0.5))
+    si = es.scene.ray_intersect(ray)
+    shapes = {s.id(): s for s in es.scene.shapes()}
+    on_cornea = si.shape == mi.ShapePtr(shapes["cornea"])
+    _, cos_t, _, eta_ti = mi.fresnel(mi.Frame3f.cos_theta(si.wi),
+                                     renderer.setup.eye.refractive_index)
+    inner = si.spawn_ray(si.to_world(mi.refract(si.wi, cos_t, eta_ti)))
+    si2 = es.scene.ray_intersect(inner, on_cornea)
+    gaze = eye_rotation_matrix(yaw_rad, pitch_rad) @ np.array([0.0, 0.0, -1.0])
+    lay = es.layout
+    cos_cap = lay.limbus_plane_m / np.hypot(lay.limbus_plane_m, lay.limbus_radius_m)
+    sclera = mi.ShapePtr(shapes["sclera"])
+    for _ in range(2):  # the cap is crossed at most twice
+        p = si2.p
+        cos_p = dr.dot(dr.normalize(p), mi.Vector3f(*(float(v) for v in gaze)))
+        cut = on_cornea & (si2.shape == sclera) & (cos_p > cos_cap)
+        si2 = dr.select(cut, es.scene.ray_intersect(si2.spawn_ray(inner.d), cut), si2)
+    label = np.full(W * H, -1)
+    for k, name in enumerate(REGIONS):
+        ptr = mi.ShapePtr(shapes[name])
+        hit = dr.select(on_cornea, si2.shape == ptr, si.shape == ptr)
+        label[np.array(hit, dtype=bool)] = k
+    return label.reshape(H, W)
+
+
+def glint_errors(renderer, setup, seed):
+    errs, energies = [], []
+    for yaw, pitch in POSES:
+        g, vis, _ = ground_truth_glints(setup, yaw, pitch)
+        ok = isolated(g, vis)
+        strobe, _ = renderer.render_rows(yaw, pitch, seed=seed)
+        c, e = centroids(strobe, g[ok], g[vis])
+        errs.append(np.linalg.norm(c - g[ok], axis=1))
+        energies.append(e)
+    return np.concatenate(errs), np.concatenate(energies)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scene", default="paper_sim")
+    ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--ref-spp", type=int, default=256)
+    ap.add_argument("--seeds", type=int, default=4)
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args(argv)
+    setup = load_scene(args.scene)
+    r = {c: BandedRenderer(setup, spp=args.spp, cornea=c, seed=1)
+         for c in ("plain_dielectric", "dielectric", "conductor")}
+    print(f"# cornea materials, {args.scene} {setup.camera.width_px}x{setup.camera.height_px}, "
+          f"{args.spp} spp, variant {r['dielectric'].variant}\n")
+    print("| material | glints | median error (px) | max error (px) |")
+    print("|---|---:|---:|---:|")
+    for name, rend in r.items():
+        e, _ = glint_errors(rend, setup, seed=5)
+        e = e[np.isfinite(e)]
+        print(f"| {name} | {e.size} | {np.median(e):.3f} | {e.max():.3f} |")
+
+    for rend in (r["plain_dielectric"], r["dielectric"]):
+        rend.render_rows(0.0, 0.0, seed=0)  # warm: kernels compiled
+    times = {"plain_dielectric": [], "dielectric": []}
+    for k in range(args.repeats):
+        for name in times:
+            t = time.perf_counter()
+            r[name].render_rows(0.05 * k, 0.0, seed=10 + k)
+            times[name].append(time.perf_counter() - t)
+    med = {k: float(np.median(v)) for k, v in times.items()}
+    print(f"\nwhole frame, median of {args.repeats} alternated: plain dielectric "
+          f"{med['plain_dielectric']:.2f} s, new {med['dielectric']:.2f} s, ratio "
+          f"{med['dielectric'] / med['plain_dielectric']:.3f}")
+
+    yaw, pitch = POSES[1]
+    labels = region_labels(r["dielectric"], yaw, pitch)
+    g, vis, _ = ground_truth_glints(setup, yaw, pitch)
+    ok = isolated(g, vis)
+
+    def stats(rend, spp):
+        means, energies = [], []
+        for s in range(args.seeds):
+            strobe, amb = rend.render_rows(yaw, pitch, spp=spp, seed=100 + s)
+            means.append([[img[labels == k].mean() for k in range(len(REGIONS))]
+                          for img in (strobe, amb)])
+            energies.append(centroids(strobe, g[ok], g[vis])[1])
+        m, e = np.array(means), np.array(energies)
+        n = args.seeds
+        return m.mean(0), m.std(0, ddof=1) / np.sqrt(n), e.mean(0), e.std(0, ddof=1) / np.sqrt(n)
+
+    t = time.perf_counter()
+    new = stats(r["dielectric"], args.spp)
+    ref = stats(r["plain_dielectric"], args.ref_spp)
+    print(f"\nbias at pose {POSES[1]} rad: new at {args.spp} spp vs Mitsuba's dielectric at "
+          f"{args.ref_spp} spp, {args.seeds} seeds each ({time.perf_counter() - t:.0f} s)\n")
+    print("| region | channel | pixels | new | reference | difference / sigma |")
+    print("|---|---|---:|---:|---:|---:|")
+    for k, name in enumerate(REGIONS):
+        for c, ch in enumerate(("strobe", "ambient")):
+            a, b = new[0][c, k], ref[0][c, k]
+            s = np.hypot(new[1][c, k], ref[1][c, k])
+            z = (a - b) / s if s > 0 else 0.0
+            print(f"| {name} | {ch} | {(labels == k).sum()} | {a:.5g} | {b:.5g} | {z:+.2f} |")
+    ea, eb = new[2], ref[2]
+    z = (ea - eb) / np.hypot(new[3], ref[3])
+    tot = np.nansum(ea) / np.nansum(eb)
+    tot_se = tot * np.hypot(np.sqrt(np.nansum(new[3] ** 2)) / np.nansum(ea),
+                            np.sqrt(np.nansum(ref[3] ** 2)) / np.nansum(eb))
+    print(f"\nglint energies ({ea.size} glints): total new / reference = {tot:.4f} +- "
+          f"{tot_se:.4f}, per glint median ratio {np.nanmedian(ea / eb):.4f}, "
+          f"|difference| / sigma median "
+          f"{np.nanmedian(np.abs(z)):.2f}, max {np.nanmax(np.abs(z)):.2f}")
+
+    deep = BandedRenderer(setup, spp=args.spp, cornea="dielectric", seed=1,
+                          options=SceneOptions(max_depth=12))
+    iris = labels == REGIONS.index("iris")
+    m6 = np.mean([r["dielectric"].render_rows(yaw, pitch, seed=200 + s)[1][iris].mean()
+                  for s in range(args.seeds)])
+    m12 = np.mean([deep.render_rows(yaw, pitch, seed=200 + s)[1][iris].mean()
+                   for s in range(args.seeds)])
+    print(f"\niris ambient mean: max_depth 6 {m6:.5g}, max_depth 12 {m12:.5g} "
+          f"(6 is {100 * (1 - m6 / m12):.1f} % darker)")
+
+
+if __name__ == "__main__":
+    main()
