@@ -56,6 +56,9 @@ DARK_DN = 2.0
 SATURATED_SHARE = 0.002
 #: Relative modulation (SD of the normalised profile) below which a lit frame has no bands.
 FLAT_MODULATION = 0.02
+#: Floor of clock_ppm_sd: the scene-dependent bias of the fitted band positions (which a static
+#: scene repeats in every frame, so no scatter shows it) reached 0.2 ppm on the test captures.
+CLOCK_PPM_FLOOR = 0.5
 #: Fewest frames with bands for a drift (and so S without the strobe clock).
 MIN_DRIFT_FRAMES = 3
 
@@ -90,6 +93,7 @@ class FrameBands:
     rise_rows: float = math.nan
     width_rows: float = math.nan
     rms: float = math.nan
+    sd: tuple = (math.nan, math.nan, math.nan, math.nan)  # of pitch, phase, rise, width
 
 
 @dataclass
@@ -146,10 +150,12 @@ def _running_mean(r: np.ndarray, window: int) -> np.ndarray:
 
 def _pitch_guess(q: np.ndarray, lo: float, hi: float) -> float:
     """The strongest period of q between lo and hi rows (autocorrelation peak)."""
-    q = q - q.mean()
+    q = q - _running_mean(q, 31)  # the scene's smooth row brightness out, the bands kept
     ac = np.correlate(q, q, mode="full")[q.size - 1:]
     lags = np.arange(ac.size)
-    ok = (lags >= lo) & (lags <= min(hi, q.size // 2))
+    neg = np.flatnonzero(ac < 0)  # past the first zero: no longer the zero-lag peak
+    start = max(lo, int(neg[0]) if neg.size else lo)
+    ok = (lags >= start) & (lags <= min(hi, q.size // 2))
     if not np.any(ok):
         return math.nan
     k = int(lags[ok][np.argmax(ac[ok])])
@@ -192,32 +198,49 @@ def measure_frame(image_dn: np.ndarray, black_dn: float, index: int, *, pitch_gu
         p, ph, a, b, g = x
         return g * band_profile_model(y, p, ph, a, b) - q
 
-    best = None
-    for ph0 in np.linspace(0, p0, 24, endpoint=False):  # the phase: grid, then least squares
-        for b0 in (p0 - a0, p0):
-            x0 = [p0, ph0, a0, max(b0, a0 + 0.1), 1.0]
-            c = float(np.sum(resid(x0) ** 2))
-            if best is None or c < best[0]:
-                best = (c, x0)
-    lo = [0.9 * p0, -np.inf, 0.05, 0.05, 0.0]
-    hi = [1.1 * p0, np.inf, 2.0 * p0, 3.0 * p0, np.inf]
-    try:
-        fit = least_squares(resid, best[1], bounds=(lo, hi), x_scale=[0.1, 1, 1, 1, 0.1])
-    except ValueError as exc:
-        return FrameBands(index, "fit failed", str(exc))
+    cands = []  # the phase and band shape: a grid, then least squares from the best three
+    for ph0 in np.arange(0.0, p0, 0.5):
+        for a_ in sorted({a0, 1.0, 0.1 * p0}):
+            for f in (0.5, 0.8, 0.95, 1.0, 1.05):
+                x0 = [p0, ph0, a_, max(f * p0 - a_, a_ + 0.1), 1.0]
+                r0 = resid(x0)
+                x0[4] = float(np.dot(q, r0 + q) / max(np.dot(r0 + q, r0 + q), 1e-12))
+                cands.append((float(np.sum(resid(x0) ** 2)), x0))
+    cands.sort(key=lambda c: c[0])
+    lo = [0.97 * p0, -np.inf, 0.05, 0.05, 0.0]
+    hi = [1.03 * p0, np.inf, 2.0 * p0, 3.0 * p0, np.inf]
+    fit = None
+    for _, x0 in cands[:3]:
+        try:
+            f_ = least_squares(resid, x0, bounds=(lo, hi), x_scale=[0.1, 1, 1, 1, 0.1])
+        except ValueError as exc:
+            return FrameBands(index, "fit failed", str(exc))
+        if fit is None or f_.cost < fit.cost:
+            fit = f_
     p, ph, a, b, _ = fit.x
     a, b = min(a, b), max(a, b)
     rms = float(np.sqrt(np.mean(fit.fun ** 2)))
     if rms > 0.5 * np.std(q):
         return FrameBands(index, "fit failed", f"the band model leaves {rms:.3f} of a "
                           f"{np.std(q):.3f} modulation")
-    return FrameBands(index, "bands", "", float(p), float(ph % p), float(a), float(b), rms)
+    J = fit.jac[:, :4]
+    try:
+        cov = np.linalg.inv(J.T @ J) * rms ** 2 * y.size / max(y.size - 5, 1)
+        sd = tuple(float(math.sqrt(max(v, 0.0))) for v in np.diag(cov))
+    except np.linalg.LinAlgError:
+        sd = (math.nan,) * 4
+    if fit.x[2] > fit.x[3]:
+        sd = (sd[0], sd[1], sd[3], sd[2])
+    return FrameBands(index, "bands", "", float(p), float(ph % p), float(a), float(b), rms, sd)
 
 
-def _mean_sd(v: np.ndarray) -> tuple[float, float]:
+def _mean_sd(v: np.ndarray, sd_one: np.ndarray) -> tuple[float, float]:
+    """Mean and SD: the scatter's standard error, but never below the median single frame's
+    fit SD (a static scene biases every frame alike, and that does not average out)."""
+    floor = float(np.nanmedian(sd_one)) if np.any(np.isfinite(sd_one)) else math.nan
     if v.size < 2:
-        return float(v.mean()) if v.size else math.nan, math.nan
-    return float(v.mean()), float(v.std(ddof=1) / math.sqrt(v.size))
+        return float(v.mean()), floor
+    return float(v.mean()), float(np.nanmax([v.std(ddof=1) / math.sqrt(v.size), floor]))
 
 
 def measure_capture(folder, *, progress=None) -> CaptureTiming:
@@ -238,12 +261,13 @@ def measure_capture(folder, *, progress=None) -> CaptureTiming:
     pulse_nom_s = float(strobe.get("width_ticks", 0)) / F_STROBE_HZ
     dt = cap.frame_period_s
     M = int(round(dt / clk_nom_s))
-    frames, expo_meta = [], []
+    frames, expo_meta, starts = [], [], []
     total = max(cap.index) + 1
     for k, fr in enumerate(cap.frames()):
         if fr.image is None:
             frames.append(FrameBands(fr.index, "missing", fr.reason or ""))
         else:
+            starts.append((fr.index, fr.start_s))
             good = [f for f in frames if f.status == "bands"]
             guess = float(np.median([f.pitch_rows for f in good])) if good else None
             rise = float(np.median([f.rise_rows for f in good])) if good else None
@@ -253,6 +277,9 @@ def measure_capture(folder, *, progress=None) -> CaptureTiming:
                 expo_meta.append(float(fr.metadata["ExposureTime"]) * 1e-6)
         if progress is not None:
             progress(k + 1, total)
+    if len(starts) >= 2:  # Δt: a line through the time stamps (finer than their median step)
+        si = np.array(starts)
+        dt = float(np.polyfit(si[:, 0], si[:, 1], 1)[0])
     good = [f for f in frames if f.status == "bands"]
     if not good:
         counts = {}
@@ -261,9 +288,9 @@ def measure_capture(folder, *, progress=None) -> CaptureTiming:
         raise CaptureError(f"{cap.path}: no frame with bands to measure ("
                            + ", ".join(f"{v} {k}" for k, v in sorted(counts.items())) + ")")
     notes = []
-    p, p_sd = _mean_sd(np.array([f.pitch_rows for f in good]))
-    a, a_sd = _mean_sd(np.array([f.rise_rows for f in good]))
-    b, b_sd = _mean_sd(np.array([f.width_rows for f in good]))
+    p, p_sd = _mean_sd(np.array([f.pitch_rows for f in good]), np.array([f.sd[0] for f in good]))
+    a, a_sd = _mean_sd(np.array([f.rise_rows for f in good]), np.array([f.sd[2] for f in good]))
+    b, b_sd = _mean_sd(np.array([f.width_rows for f in good]), np.array([f.sd[3] for f in good]))
     idx = np.array([f.index for f in good], dtype=np.float64)
     ph = np.array([f.phase_rows for f in good])
     if len(good) >= MIN_DRIFT_FRAMES:
@@ -277,7 +304,11 @@ def measure_capture(folder, *, progress=None) -> CaptureTiming:
         res = un - A @ coef
         dof = max(idx.size - 2, 1)
         cov = np.linalg.inv(A.T @ A) * float(res @ res) / dof
-        delta, delta_sd = float(coef[1]), float(math.sqrt(cov[1, 1]))
+        # Neighbouring frames see the scene at nearly the same band positions, so their phase
+        # errors are correlated: widen by the AR(1) factor sqrt((1 + rho) / (1 - rho)).
+        rho = float(np.clip(np.corrcoef(res[:-1], res[1:])[0, 1], 0.0, 0.95)) \
+            if res.size > 3 and np.std(res) > 0 else 0.0
+        delta, delta_sd = float(coef[1]), float(math.sqrt(cov[1, 1] * (1 + rho) / (1 - rho)))
         S_guess = p * dt / clk_nom_s
         S = M * p - delta
         m = round((S - S_guess) / p)  # whole periods hidden in δ modulo p
@@ -286,7 +317,11 @@ def measure_capture(folder, *, progress=None) -> CaptureTiming:
         S_sd = math.hypot(M * p_sd, delta_sd)
         clk = dt * (1 + delta / S) / M
         ppm = 1e6 * (clk / clk_nom_s - 1)
-        ppm_sd = 1e6 * dt / (M * clk_nom_s) * math.hypot(delta_sd / S, delta * S_sd / S ** 2)
+        # Δt from nanosecond time stamps: known to about 1 ns over the run's span.
+        dt_rel_sd = 1e-9 / max(dt * (idx[-1] - idx[0]), dt)
+        ppm_sd = 1e6 * dt / (M * clk_nom_s) * math.sqrt(
+            (delta_sd / S) ** 2 + (delta * S_sd / S ** 2) ** 2 + dt_rel_sd ** 2)
+        ppm_sd = math.hypot(ppm_sd, CLOCK_PPM_FLOOR)
     else:
         notes.append(f"{len(good)} banded frame(s): too few for the drift (need "
                      f"{MIN_DRIFT_FRAMES}); S from the nominal strobe clock, clock_ppm unknown")
