@@ -89,7 +89,7 @@ def cmd_bands_measure(args) -> int:
 
 
 def cmd_bands(args) -> int:
-    if args.measure is not None:
+    if getattr(args, "measure", None) is not None:  # cmd_demo calls this with its own args
         return cmd_bands_measure(args)
     from estimator.banding import band_gap_rows, band_height, partial_lines
     from estimator.scene import load_scene
