@@ -24,6 +24,39 @@ def _link(args):
     return StrobeLink(port, timeout_s=args.timeout, wait_ready_s=args.wait_ready)
 
 
+def _lock(args, link) -> int:
+    """One step of the software phase lock: the timing measured by ``scet bands --measure
+    --json`` (under the firmware's current settings) to SET PERIOD, SET TRIM and PHASE."""
+    from estimator.formats import read_json
+
+    from .lock import lock_command
+
+    if args.timing is None:
+        raise ValueError("scet strobe lock needs --timing M.json (scet bands --measure --json)")
+    doc = read_json(args.timing)
+    phases, frames = doc.get("phase_s"), doc.get("phase_frames")
+    if not (isinstance(phases, list) and isinstance(frames, list) and len(phases) == len(frames)
+            and len(phases) >= 3 and all(isinstance(v, (int, float)) for v in phases + frames)):
+        raise ValueError(f"{args.timing}: keys 'phase_s' and 'phase_frames' must be lists of "
+                         "numbers of one length, at least 3 frames")
+    for key in ("frame_period_s", "total_lines", "periods_per_frame"):
+        if not isinstance(doc.get(key), (int, float)):
+            raise ValueError(f"{args.timing}: key {key!r} must be a number")
+    s = link.get()
+    target = phases[0] if args.target_phase_us is None else args.target_phase_us * 1e-6
+    cmd = lock_command(phases, frames, frame_period_s=doc["frame_period_s"],
+                       total_lines=doc["total_lines"],
+                       periods_per_frame=int(doc["periods_per_frame"]),
+                       period_ticks=s.period_ticks, trim_256th=s.trim_256th,
+                       target_phase_s=target, next_frame=int(frames[-1]) + args.delay_frames)
+    link.apply(period_ticks=cmd.period_ticks, trim_256th=cmd.trim_256th)
+    pending = link.shift_phase(cmd.phase_ticks) if cmd.phase_ticks else 0
+    print(f"lock: PERIOD {s.period_ticks} -> {cmd.period_ticks}, TRIM {s.trim_256th} -> "
+          f"{cmd.trim_256th}, PHASE {cmd.phase_ticks:+d} ticks (pending {pending}), "
+          f"target phase {target * 1e6:.2f} us")
+    return 0
+
+
 def cmd_strobe(args) -> int:
     from .strobe import StrobeError
 
@@ -45,6 +78,8 @@ def cmd_strobe(args) -> int:
                 print(f"phase shift of {args.ticks} ticks queued (pending {pending})"
                       + (f"; applied, {c.periods} periods since reset" if c else ""))
                 return 0
+            elif args.action == "lock":
+                return _lock(args, link)
             elif args.action == "count":
                 c = link.count()
                 print(f"periods {c.periods}, frames {c.frames}, phase shift pending {c.pending_ticks} ticks")
@@ -159,7 +194,8 @@ def _plan_args(p) -> None:
 def register(sub) -> None:
     """Add the prototype's subcommands to the ``scet`` parser's subparsers."""
     p = sub.add_parser("strobe", help="talk to the Arduino strobe firmware over its serial port")
-    p.add_argument("action", choices=("ping", "get", "set", "phase", "count", "start", "stop"))
+    p.add_argument("action", choices=("ping", "get", "set", "phase", "count", "start", "stop",
+                                       "lock"))
     p.add_argument("ticks", nargs="?", type=int, help="phase: shift in ticks (+ delays the train)")
     p.add_argument("--port", help=f"serial port (default ${PORT_ENV})")
     p.add_argument("--timeout", type=finite(0.0, 3600.0), default=1.0, help="seconds to wait for a reply")
@@ -171,6 +207,12 @@ def register(sub) -> None:
     p.add_argument("--trim", type=int, help="1/256 tick added to each period on average")
     p.add_argument("--mode", choices=("banded", "single"))
     p.add_argument("--wait", action="store_true", help="phase: wait until the shift is applied")
+    p.add_argument("--timing", type=Path, help="lock: scet bands --measure --json output")
+    p.add_argument("--target-phase-us", type=finite(0.0, 1e6),
+                   help="lock: wanted delay from first readout to first band (default: the "
+                        "first measured frame's)")
+    p.add_argument("--delay-frames", type=integer(1, 1000), default=2,
+                   help="lock: frames from the last measured one until the command acts")
     p.set_defaults(func=cmd_strobe)
 
     p = sub.add_parser("capture", help="capture raw frames on the Pi, or replay a rendered dataset")

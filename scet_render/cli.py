@@ -49,7 +49,48 @@ def cmd_scene(args) -> int:
     return 0
 
 
+def cmd_bands_measure(args) -> int:
+    """``scet bands --measure CAPTURE_DIR``: the capture's timing, measured from its bands."""
+    import json
+
+    from estimator.capture import CaptureFolder
+    from estimator.capture.timing import measure_capture
+    from estimator.formats import atomic_write
+
+    total = max(CaptureFolder(args.measure).index) + 1
+    bar, update = progress_bar(total, "frame", "measuring bands")
+    try:
+        m = measure_capture(args.measure, progress=update)
+    finally:
+        bar.close()
+    line_us = m.frame_period_s / m.total_lines * 1e6
+    rows = [["total lines S", f"{m.total_lines:.3f}", f"{m.total_lines_sd:.3f}", "lines"],
+            ["exposure", f"{m.exposure_s * 1e6:.2f}", f"{m.exposure_s_sd * 1e6:.2f}", "us"],
+            ["pulse width", f"{m.pulse_s * 1e6:.2f}", f"{m.pulse_s_sd * 1e6:.2f}", "us"],
+            ["band pitch", f"{m.pitch_rows:.4f}", f"{m.pitch_rows_sd:.4f}", "rows"],
+            ["drift per frame", f"{m.drift_rows_per_frame:.4f}",
+             f"{m.drift_rows_per_frame_sd:.4f}", "rows"],
+            ["strobe clock", f"{m.clock_ppm:+.2f}", f"{m.clock_ppm_sd:.2f}", "ppm"],
+            ["phase, first frame", f"{m.phase_s[0] * 1e6:.2f}", f"{m.phase_s_sd[0] * 1e6:.2f}",
+             "us"],
+            ["line time", f"{line_us:.4f}", "", "us"]]
+    print(f"timing of {args.measure}: {sum(f.status == 'bands' for f in m.frames)} of "
+          f"{len(m.frames)} frames with bands, {m.periods_per_frame} strobe periods a frame")
+    print_table(rows, ["quantity", "value", "sd", "unit"])
+    for f in m.frames:
+        if f.status != "bands":
+            print(f"frame {f.index}: {f.status} ({f.detail})")
+    for note in m.notes:
+        print(f"note: {note}")
+    if args.json:
+        atomic_write(args.json, json.dumps(m.to_dict(), indent=1) + "\n")
+        print(f"written to {args.json}")
+    return 0
+
+
 def cmd_bands(args) -> int:
+    if getattr(args, "measure", None) is not None:  # cmd_demo calls this with its own args
+        return cmd_bands_measure(args)
     from estimator.banding import band_gap_rows, band_height, partial_lines
     from estimator.scene import load_scene
     from scet_render.band_diagram import band_table, draw_band_diagram
@@ -263,6 +304,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frame", type=integer(0, MAX_FRAMES), default=0, help="frame index (default 0)")
     p.add_argument("--frames", type=integer(1, 1000), default=1, help="frames drawn in the diagram (default 1)")
     p.add_argument("--png", type=Path, help="write the diagram to this PNG")
+    p.add_argument("--measure", type=Path, metavar="CAPTURE_DIR",
+                   help="measure S, exposure, pulse width, phase and strobe clock of a capture "
+                        "folder from its bands (no scene needed)")
+    p.add_argument("--json", type=Path, metavar="OUT", help="with --measure: write the result here")
     p.set_defaults(func=cmd_bands)
 
     p = sub.add_parser("simulate", help="feature-level simulation: glints of every light for every target")
