@@ -14,11 +14,12 @@ kernels do the same arithmetic one element at a time, in the same order where an
 decides (ties of the assignment, the first order violation), so that both forms give the same
 identities and scores to rounding (tested against each other on random and real bands).
 
-The same switch, :data:`ENABLED`, has the tracker estimate a prior-assisted band with the
-compiled small fit and the prior (:func:`estimator.cornea.fit_small`, the batched fit's cost
-and minimum): ~2 ms of such a band's ~6 ms. The search's hypotheses keep the batched fit:
-on their poor hypotheses (few glints, far from the truth) the two solvers' stopping rules
-part, and the installs with and without Numba would then name different failures.
+The same switch, :data:`ENABLED`, has the prior-assisted bands refitted and estimated by the
+compiled small fit with the prior (:func:`estimator.cornea.fit_small`, the batched fit's cost
+and minimum to ~1e-9 m): such a band drops from ~6 to ~2.5 ms. Cold hypotheses (no prior)
+keep the batched fit: on their poor ones (few glints, far from the truth) the two solvers'
+stopping rules part, and the installs with and without Numba would then name different
+failures.
 
 Without Numba (or with ``NUMBA_DISABLE_JIT=1``) the numpy forms run (:data:`ENABLED` is
 False): the estimator needs nothing beyond numpy, scipy and OpenCV.
