@@ -22,14 +22,19 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from estimator.scene import load_scene
-from scet_render.render import BandedRenderer
-from scet_render.render.layout import SceneOptions
-from scet_render.simulate import ground_truth_glints
+# The renderer tests' glint measurement (tests/scet_render/centroids.py).
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from estimator.scene import load_scene  # noqa: E402
+from scet_render.render import BandedRenderer  # noqa: E402
+from scet_render.render.layout import SceneOptions  # noqa: E402
+from scet_render.simulate import ground_truth_glints  # noqa: E402
+from tests.scet_render.centroids import glint_centroids  # noqa: E402
 
 POSES = [(0.0, 0.0), (0.2, -0.12), (-0.15, 0.1), (0.1, 0.15)]
 HALF_PX = 4
@@ -38,26 +43,9 @@ REGIONS = ("iris", "pupil", "sclera", "skin")
 
 
 def centroids(img, pred_px, all_px):
-    """Intensity-weighted centroids and energies of the glints predicted at ``pred_px``
-    (window pixels nearest to their own glint, background the border median, < 5 % of the
-    peak dropped)."""
-    h = HALF_PX
-    out, energy = np.full(pred_px.shape, np.nan), np.full(len(pred_px), np.nan)
-    for i, (u, v) in enumerate(pred_px):
-        x0, y0 = int(round(u)), int(round(v))
-        if not (h <= x0 < img.shape[1] - h and h <= y0 < img.shape[0] - h):
-            continue
-        yy, xx = np.mgrid[y0 - h:y0 + h + 1, x0 - h:x0 + h + 1]
-        win = img[y0 - h:y0 + h + 1, x0 - h:x0 + h + 1].astype(np.float64)
-        border = np.concatenate([win[0], win[-1], win[1:-1, 0], win[1:-1, -1]])
-        d = np.hypot(xx[..., None] - all_px[:, 0], yy[..., None] - all_px[:, 1])
-        own = d.min(axis=-1) >= np.hypot(xx - u, yy - v) - 1e-9
-        w = np.where(own, np.clip(win - np.median(border), 0.0, None), 0.0)
-        energy[i] = w.sum()
-        w[w < 0.05 * w.max()] = 0.0
-        if w.sum() > 0:
-            out[i] = [(w * xx).sum() / w.sum(), (w * yy).sum() / w.sum()]
-    return out, energy
+    """Centroids and energies of the glints predicted at ``pred_px``
+    (:func:`tests.scet_render.centroids.glint_centroids`, the renderer tests' measurement)."""
+    return glint_centroids(img, pred_px, all_px, HALF_PX)
 
 
 def isolated(g, vis):

@@ -106,6 +106,15 @@ def enforce_order(g, pred, assign, group):
             assign[b] = -1
 
 
+def _rival_light(assign, shifted, finite, d, r):
+    """The light detection ``d`` takes in rival ``r`` (its match shifted along the arc), or
+    -1 where it has none or the linearisation does not place it."""
+    if assign[d] < 0:
+        return -1
+    light = shifted[assign[d], r]
+    return light if light >= 0 and finite[light] else -1
+
+
 def rival_margin(g, assign, pred, J, vis, shifted, x, prior, lo, hi, gate_px, band_margin_px,
                  noise_px, unmatched_cost, missing_cost, prior_sigma_rad, weight, score):
     """:meth:`estimator.matching.BandFollower._rival_margin` from its linearisation: ``pred``
@@ -134,10 +143,8 @@ def rival_margin(g, assign, pred, J, vis, shifted, x, prior, lo, hi, gate_px, ba
         a00 = a01 = a11 = b0 = b1 = 0.0
         used = False
         for d in range(k):
-            if assign[d] < 0:
-                continue
-            light = shifted[assign[d], r]
-            if light < 0 or not finite[light]:
+            light = _rival_light(assign, shifted, finite, d, r)
+            if light < 0:
                 continue
             used = True
             ry = g[d, 0] - pred[light, 0]
@@ -168,10 +175,8 @@ def rival_margin(g, assign, pred, J, vis, shifted, x, prior, lo, hi, gate_px, ba
         total = 0.0
         kept = 0
         for d in range(k):
-            if assign[d] < 0:
-                continue
-            light = shifted[assign[d], r]
-            if light < 0 or not finite[light]:
+            light = _rival_light(assign, shifted, finite, d, r)
+            if light < 0:
                 continue
             u = pred[light, 0] + (J[light, 0, 0] * e0 + J[light, 0, 1] * e1)
             v = pred[light, 1] + (J[light, 1, 0] * e0 + J[light, 1, 1] * e1)
@@ -263,6 +268,7 @@ def coarse_scores(pred, vis, nodes, g, lo, hi, band_margin_px, gate2, unmatched_
 
 if ENABLED:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+    _rival_light = _jit(_rival_light)
     nearest_assign = _jit(nearest_assign)
     enforce_order = _jit(enforce_order)
     rival_margin = _jit(rival_margin)

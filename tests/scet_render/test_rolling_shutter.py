@@ -20,6 +20,7 @@ from estimator.setup import Strobe
 from scet_render.motion import fixation_sequence
 from scet_render.render import BandedRenderer, FrameRender, plan_frame
 from scet_render.simulate import ground_truth_glints
+from tests.scet_render.centroids import HALF_WINDOW_PX, glint_centroids
 
 
 @dataclass(frozen=True)
@@ -41,8 +42,6 @@ class Tol:
 
 
 TOL = Tol()
-#: Half-width (px) of the window a glint centroid is measured in: glints are ~3 x 5 px.
-HALF_WINDOW_PX = 4
 #: Closer glints touch (their blobs are up to 5 px long); the test leaves them out.
 MIN_GLINT_SPACING_PX = 7.0
 
@@ -182,27 +181,9 @@ def test_renderer_rejects_bad_settings(paper, kwargs, match):
 
 
 def _centroids(img: np.ndarray, pred_px: np.ndarray, all_px: np.ndarray) -> np.ndarray:
-    """(n, 2) intensity-weighted centroids of the glints predicted at ``pred_px``.
-
-    Each glint owns the pixels of its window nearer to it than to any glint of ``all_px``
-    (every visible glint). Background: the median of the window's border. Pixels below 5 % of
-    the glint's peak are dropped, so that stray diffuse light does not pull the centroid.
-    """
-    h = HALF_WINDOW_PX
-    out = np.full(pred_px.shape, np.nan)
-    for i, (u, v) in enumerate(pred_px):
-        x0, y0 = int(round(u)), int(round(v))
-        if not (h <= x0 < img.shape[1] - h and h <= y0 < img.shape[0] - h):
-            continue
-        yy, xx = np.mgrid[y0 - h:y0 + h + 1, x0 - h:x0 + h + 1]
-        win = img[y0 - h:y0 + h + 1, x0 - h:x0 + h + 1].astype(np.float64)
-        border = np.concatenate([win[0], win[-1], win[1:-1, 0], win[1:-1, -1]])
-        d = np.hypot(xx[..., None] - all_px[:, 0], yy[..., None] - all_px[:, 1])
-        own = d.min(axis=-1) >= np.hypot(xx - u, yy - v) - 1e-9
-        w = np.where(own, np.clip(win - np.median(border), 0.0, None), 0.0)
-        w[w < 0.05 * w.max()] = 0.0
-        out[i] = [(w * xx).sum() / w.sum(), (w * yy).sum() / w.sum()]
-    return out
+    """(n, 2) intensity-weighted centroids of the glints predicted at ``pred_px``
+    (:func:`tests.scet_render.centroids.glint_centroids`)."""
+    return glint_centroids(img, pred_px, all_px)[0]
 
 
 def _isolated(glints_px, visible):
