@@ -334,13 +334,9 @@ class Tracker:
             if not fit.ok:
                 return None
             center, rms, resume = fit.x, fit.rms_px, fit.x
-            xy = self._map.predict(center[None])[0]
         else:
             center, rms, resume = match.cornea_center_m, orbit.rms_px, orbit.x
-            point, hits = screen_intersection(self.calibration.eye_center_m,
-                                              gaze_direction(orbit.x[0], orbit.x[1])[None],
-                                              self.setup.screen.z_m)
-            xy = point[0, :2] if hits[0] else np.full(2, np.nan)
+        xy = self._gaze_point(center, orbit.x)
         if not (np.isfinite(xy).all() and rms <= MAX_RESIDUAL_PX) or \
                 self._implausible(time_s, match.angles_rad):
             return None
@@ -350,7 +346,7 @@ class Tracker:
         well = np.linalg.det(JtJ) > 1e-12 * JtJ[0, 0] * JtJ[1, 1]
         cov = self.prior.noise_px ** 2 * np.linalg.inv(JtJ) if well else np.full((2, 2), np.inf)
         self._set_state(time_s, match.angles_rad, cov)
-        return GazeSample(f, j, time_s, np.asarray(xy, dtype=np.float64).copy(), center.copy(),
+        return GazeSample(f, j, time_s, xy.copy(), center.copy(),
                           g[used], lights, float(rms), "ok", match.confidence[used].copy())
 
     def _assisted(self, f, j, time_s, g, rows, failed: GazeSample) -> GazeSample:
@@ -408,17 +404,22 @@ class Tracker:
         if not (fit.ok and fit.rms_px <= MAX_RESIDUAL_PX
                 and np.abs(fit.x).max() < ANGLE_BOUND_RAD):
             return None
-        axis = gaze_direction(fit.x[0], fit.x[1])
-        center = orbit.eye_center_m + orbit.orbit_radius_m * axis
-        if self.method == "polynomial":
-            xy = self._map.predict(center[None])[0]
-        else:
-            point, hits = screen_intersection(self.calibration.eye_center_m, axis[None],
-                                              self.setup.screen.z_m)
-            xy = point[0, :2] if hits[0] else np.full(2, np.nan)
+        center = orbit.eye_center_m + orbit.orbit_radius_m * gaze_direction(fit.x[0], fit.x[1])
+        xy = self._gaze_point(center, fit.x)
         if not np.isfinite(xy).all():
             return None
-        return np.asarray(xy, dtype=np.float64), center, fit.x, float(fit.rms_px)
+        return xy, center, fit.x, float(fit.rms_px)
+
+    def _gaze_point(self, center_m, angles_rad) -> np.ndarray:
+        """The screen point (2,) of one estimate: the mapping of its cornea centre
+        (polynomial), or where its optical axis from the calibrated eye centre meets the
+        screen (geometric; NaN where it does not)."""
+        if self.method == "polynomial":
+            return np.asarray(self._map.predict(center_m[None])[0], dtype=np.float64)
+        point, hits = screen_intersection(self.calibration.eye_center_m,
+                                          gaze_direction(angles_rad[0], angles_rad[1])[None],
+                                          self.setup.screen.z_m)
+        return point[0, :2] if hits[0] else np.full(2, np.nan)
 
     def _set_state(self, time_s: float, angles_rad, cov) -> None:
         """Keep a sample's time, rotation and covariance (the prior of the next bands), and the

@@ -267,6 +267,14 @@ def _clipped(start: int, stop: int, S: int) -> tuple[int, int]:
     return (start, max(start, stop))
 
 
+def _row_span(z: dict, sensor: Sensor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """First and last lit rows clipped to the frame's S lines, and whether a visible row
+    (y < N) is lit, of every pulse's zones (:func:`_band_rows`)."""
+    first, last = z["first"], z["last"]
+    return (np.maximum(first, 0), np.minimum(last, sensor.total_lines - 1),
+            (first <= sensor.visible_lines - 1) & (last >= 0))
+
+
 def band_layout(sensor: Sensor, strobe: Strobe, frame_index: int = 0) -> list[Band]:
     """Every band in frame ``frame_index``: one per pulse lighting any of its S lines.
 
@@ -286,6 +294,7 @@ def band_layout(sensor: Sensor, strobe: Strobe, frame_index: int = 0) -> list[Ba
     S, N = sensor.total_lines, sensor.visible_lines
     frame_index = _check_frame_index(frame_index)
     s_local = s - _frame_start_s(sensor, frame_index)
+    first_row, last_row, visible = _row_span(z, sensor)
     bands = []
     for i in range(j.size):
         # The pulse's light over its whole lattice extent (all frames) normalises the visible
@@ -305,12 +314,12 @@ def band_layout(sensor: Sensor, strobe: Strobe, frame_index: int = 0) -> list[Ba
                 k_full_first=float(z["k1"][i]),
                 k_full_last=float(z["k2"][i]),
                 k_last=float(z["k3"][i]),
-                first_row=max(first, 0),
-                last_row=min(last, S - 1),
+                first_row=int(first_row[i]),
+                last_row=int(last_row[i]),
                 full_rows=_clipped(z["full_first"][i], z["full_last"][i] + 1, S),
                 onset_rows=_clipped(first, min(z["full_first"][i], last + 1), S),
                 end_rows=_clipped(max(z["full_last"][i] + 1, first), last + 1, S),
-                visible=bool(first <= N - 1 and last >= 0),
+                visible=bool(visible[i]),
                 fraction_visible=float(visible_light / total) if total > 0 else 0.0,
             )
         )
@@ -333,8 +342,6 @@ def band_rows(sensor: Sensor, strobe: Strobe, frame_index: int = 0
         clipped to the frame's S lines.
     """
     j, s, z = _frame_pulses(sensor, strobe, frame_index)
-    first, last = z["first"], z["last"]
-    visible = (first <= sensor.visible_lines - 1) & (last >= 0)
-    return (j[visible], s[visible], np.maximum(first[visible], 0),
-            np.minimum(last[visible], sensor.total_lines - 1))
+    first_row, last_row, visible = _row_span(z, sensor)
+    return j[visible], s[visible], first_row[visible], last_row[visible]
 

@@ -14,11 +14,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from estimator.calibration import Calibration, fit_gaze_mapping
 from estimator.errors import TrackerInputError
 from estimator.folders import load_calibration, read_targets, read_timing, timing_document
 from estimator.scene import load_scene
 from tests.estimator.hostile_json import hostile_text, write_text
+from tests.estimator.test_hostile_inputs import calibration_with_mapping
 
 #: Examples per fuzz test (SCET_FUZZ_EXAMPLES=3000 for a long run; each reader passed 3000).
 EXAMPLES = settings(max_examples=int(os.environ.get("SCET_FUZZ_EXAMPLES", 150)),
@@ -75,12 +75,8 @@ def test_fuzz_timing_sidecar(work, setup, timing_doc, data):
 
 @pytest.fixture(scope="module")
 def calibration_doc(setup):
-    targets = setup.screen.grid(3, 3, margin=0.0)
-    centers = np.array([setup.eye.cornea_center(*np.ravel(a)) for a in
-                        zip(*setup.eye.angles_toward(targets))])
-    cal = Calibration.ground_truth(setup).with_mappings(
-        eq1_9=fit_gaze_mapping(centers, targets, "eq1", degenerate="min_norm"))
-    return json.loads(cal.with_quality(rms_px=0.2, warnings=[]).to_json())
+    cal = calibration_with_mapping(setup).with_quality(rms_px=0.2, warnings=[])
+    return json.loads(cal.to_json())
 
 
 @given(data=st.data())

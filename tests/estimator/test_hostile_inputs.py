@@ -208,13 +208,18 @@ def test_a_manifest_is_checked_before_its_frames_are_timed(tmp_path, setup, edit
 # --------------------------------------------------------------------------- calibration files
 
 
-def calibration_doc(setup):
+def calibration_with_mapping(setup) -> Calibration:
+    """The ground-truth calibration with a 9-target Eq. (1) mapping (the hostile-input and
+    fuzz tests' calibration file)."""
     targets = setup.screen.grid(3, 3, margin=0.0)
     centers = np.array([setup.eye.cornea_center(*np.ravel(a)) for a in
                         zip(*setup.eye.angles_toward(targets))])
-    cal = Calibration.ground_truth(setup).with_mappings(
+    return Calibration.ground_truth(setup).with_mappings(
         eq1_9=fit_gaze_mapping(centers, targets, "eq1", degenerate="min_norm"))
-    return cal.to_dict()
+
+
+def calibration_doc(setup):
+    return calibration_with_mapping(setup).to_dict()
 
 
 @pytest.mark.parametrize("edit, key, words", [
