@@ -9,7 +9,8 @@ or with ``--dataset DIR`` the PNG frames of a rendered dataset. Detection is tim
 pass that loads its compiled kernels). End to end, :meth:`estimator.tracker.Tracker.process`
 (detect, group by strobe, predict, assign, fit, map), both gaze methods, ``cheap=False`` (the
 hypothesis search on every band: the path before issue 15), ``cheap=True`` with the matcher's
-numpy steps (:mod:`estimator.matching.kernels` off: as on an install without Numba) and
+numpy steps (:mod:`estimator.matching.kernels` off, and with it the search's compiled refits
+and predictions: as on an install without Numba) and
 ``cheap=True`` alternated over ``--rounds`` rounds on the same frames (the machine's speed
 drifts: ratios are per round):
 samples/s (every lit band is a sample, NaN or not), per-frame latency p50/p99 (frame in, its

@@ -365,8 +365,16 @@ class Tracker:
         lights = match.light_index[used]
         glints = self._glints(g[used], lights)
         quick = self._assisted_fit(g[used], lights, mean, cov) if self.follower else None
+        post = None
         if quick is not None:
-            xy, center, angles, rms = quick
+            xy, center, angles, rms, JtJ = quick
+            # (Σ_glints⁻¹ + Σ_prior⁻¹)⁻¹ from the fit's own JᵀJ, as posterior_covariance
+            # builds it from the analytic one (glints that leave an angle undetermined add
+            # nothing).
+            info = np.linalg.inv(cov)
+            if np.linalg.det(JtJ) > 1e-12 * JtJ[0, 0] * JtJ[1, 1]:
+                info = info + JtJ / self.prior.noise_px ** 2
+            post = np.linalg.inv(info)
         else:
             prior = dict(prior_mean_rad=mean, prior_cov_rad2=cov, noise_px=self.prior.noise_px,
                          problems=self._problems)
@@ -380,8 +388,9 @@ class Tracker:
                 return failed_sample(f, j, time_s, PRIOR_PREFIX + reason, g[used], lights)
             xy, center, angles = est.screen_xy_m[0], est.cornea_center_m[0], est.angles_rad[0]
             rms = float(est.rms_px[0])
-        post = posterior_covariance(self._orbit, angles, np.isfinite(glints[..., 0]), cov,
-                                    self.prior.noise_px)[0]
+        if post is None:
+            post = posterior_covariance(self._orbit, angles, np.isfinite(glints[..., 0]), cov,
+                                        self.prior.noise_px)[0]
         self._set_state(time_s, angles, post)
         self._prior_angles = angles.copy()
         return GazeSample(f, j, time_s, xy.copy(), center.copy(), g[used], lights, rms, "ok",
@@ -390,9 +399,9 @@ class Tracker:
     def _assisted_fit(self, glints_px, lights, mean, cov):
         """A prior-assisted band's estimate by the compiled small fit with the prior (the
         orbit fit with the prior that both gaze methods make, from the prior's mean, as
-        :func:`estimator.gaze.geometric_gaze`): (screen point, cornea centre, angles, RMS),
-        or None where it does not give an accepted estimate (the batched fit then decides,
-        and names the failure)."""
+        :func:`estimator.gaze.geometric_gaze`): (screen point, cornea centre, angles, RMS,
+        the glints' JᵀJ), or None where it does not give an accepted estimate (the batched
+        fit then decides, and names the failure)."""
         if not match_kernels.ENABLED:
             return None
         orbit = self._problems.orbit
@@ -408,7 +417,7 @@ class Tracker:
         xy = self._gaze_point(center, fit.x)
         if not np.isfinite(xy).all():
             return None
-        return xy, center, fit.x, float(fit.rms_px)
+        return xy, center, fit.x, float(fit.rms_px), fit.JtJ
 
     def _gaze_point(self, center_m, angles_rad) -> np.ndarray:
         """The screen point (2,) of one estimate: the mapping of its cornea centre

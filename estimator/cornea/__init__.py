@@ -3,14 +3,15 @@
 Modules: ``problem`` (:class:`FitProblem`, :class:`CorneaFit`, reason codes), ``fit``
 (:func:`fit_cornea`, :func:`fit_covariance`), ``solve`` (the batched Levenberg-Marquardt and
 the paper's TRF), ``small`` (:func:`fit_small`: one band's warm-started fit, compiled where
-Numba is).
+Numba is), ``replica`` (:func:`fit_replica`: the batched fit's rules for one sample, compiled).
 """
 
 from .fit import fit_cornea, fit_covariance
 from .small import SmallFit, fit_small
+from .replica import fit_replica
 from .problem import MODELS, NON_FINITE, NOT_CONVERGED, OK, TOO_FEW_GLINTS, CorneaFit, FitProblem
 
 __all__ = [
     "fit_cornea", "fit_covariance", "MODELS", "OK", "TOO_FEW_GLINTS", "NOT_CONVERGED",
-    "NON_FINITE", "CorneaFit", "FitProblem", "fit_small", "SmallFit"
+    "NON_FINITE", "CorneaFit", "FitProblem", "fit_small", "SmallFit", "fit_replica"
 ]
