@@ -389,13 +389,15 @@ def _deblend(px: _Pixels, value, spots_idx, top, params: DetectionParams):
         sl = slice(px.starts[s], px.starts[s + 1] if s + 1 < px.n else px.seg.size)
         ys, xs, own, usable, val = px.ys[sl], px.xs[sl], px.own[sl], px.usable[sl], value[sl]
         floor = float(np.median(top[ys, xs] - val))
-        # 8-neighbour local maxima among the spot's own pixels.
+        # 8-neighbour local maxima among the spot's own pixels (the neighbours' rows and
+        # columns clamped to the image once per offset: np.clip costs ~14 us a call).
         nb = np.full(ys.size, -np.inf)
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                if dy or dx:
-                    nb = np.maximum(nb, top[np.clip(ys + dy, 0, h - 1),
-                                            np.clip(xs + dx, 0, w - 1)].astype(np.float64) - floor)
+        near_y = [np.minimum(np.maximum(ys + d, 0), h - 1) for d in (-1, 0, 1)]
+        near_x = [np.minimum(np.maximum(xs + d, 0), w - 1) for d in (-1, 0, 1)]
+        for iy in range(3):
+            for ix in range(3):
+                if iy != 1 or ix != 1:
+                    nb = np.maximum(nb, top[near_y[iy], near_x[ix]].astype(np.float64) - floor)
         cand = np.flatnonzero(own & (val > nb))
         if not 2 <= cand.size <= params.max_blend:
             continue
