@@ -32,8 +32,8 @@ EYE_SPEED_MAX_DEG_S = 600.0
 #: Accepted corneal asphericity Q (conic constant; 0 is the sphere): -1 < Q <= 1. Q <= -1 is a
 #: paraboloid or hyperboloid, not a closed cornea (and no ellipsoid for the renderer); Q > 1 an
 #: oblate cap flatter than any measured cornea. Human corneas measure Q = -0.26 +/- 0.18 (SD;
-#: Kiely et al. 1982), within about -0.8 to +0.4 in surveys (Read et al. 2006 report -0.3 to
-#: -0.1 means); model eyes use -0.25 (Le Grand, PyEtSimul), -0.26 (Navarro) and -0.454.
+#: Kiely et al. 1982); Navarro's model eye uses -0.26, PyEtSimul's conic cornea -0.10 and
+#: gkaModelEye's -0.454.
 ASPHERICITY_MIN = -1.0
 ASPHERICITY_MAX = 1.0
 
