@@ -4,7 +4,10 @@ Böhme et al. (2008), as used in Sec. 2.1 of the SCET paper: the cornea is a sph
 r_c whose centre sits r_co in front of the eyeball rotation centre c_e, so a rotation of the eye
 moves the cornea (a moving spherical mirror). The cap ends at the limbus, ``limbus_depth_m``
 behind the corneal apex. The optical and visual axes coincide here (no angle kappa), as in the
-paper's simulation.
+paper's simulation. The cornea may also be aspheric (``cornea_asphericity`` Q != 0): a conic
+of revolution about the optical axis with apex radius r_c and its apex where the sphere's is,
+whose glints :mod:`estimator.geometry.conic` computes exactly; the cornea centre stays the
+apex's centre of curvature.
 
 Eye rotations are Fick angles: ``yaw`` about the world vertical (positive toward +x), then
 ``pitch`` about the rotated horizontal axis (positive up). At yaw = pitch = 0 the eye looks

@@ -249,10 +249,11 @@ def _read_eye(t: _Table) -> Eye:
     limbus = t.quantity("limbus_depth", "length", default=BOHME_LIMBUS_DEPTH_M * s,
                         required=False, lo=0.5e-3, hi=r_c * 1.5)
     n = t.number("refractive_index", 1.376, required=False, lo=1.0, hi=2.0)
-    q = t.number("cornea_asphericity", 0.0, required=False, lo=ASPHERICITY_MIN, hi=ASPHERICITY_MAX)
-    if q == ASPHERICITY_MIN:
-        raise t.error("cornea_asphericity", f"expected {ASPHERICITY_MIN:g} < Q <= {ASPHERICITY_MAX:g} "
-                      "(Q = -1 is a paraboloid, not a closed cornea), got -1")
+    q = t.number("cornea_asphericity", 0.0, required=False)
+    if not ASPHERICITY_MIN < q <= ASPHERICITY_MAX:
+        raise t.error("cornea_asphericity", f"expected a conic constant {ASPHERICITY_MIN:g} < Q <= "
+                      f"{ASPHERICITY_MAX:g} (Q <= -1 is a paraboloid or hyperboloid, not a closed "
+                      f"cornea; Q > 1 is flatter than any measured one), got {q:g}")
     if q != 0 and limbus >= r_c / (1.0 + q):
         raise t.error("cornea_asphericity", f"the limbus ({limbus * 1e3:.3f} mm behind the apex) "
                       f"must lie in front of the conic's equator ({r_c / (1 + q) * 1e3:.3f} mm)")
