@@ -64,6 +64,7 @@ test-slow: $(STAMP)
 
 bench: $(STAMP)
 	$(PY) benchmarks/bench_projection.py
+	$(PY) benchmarks/bench_conic.py
 	$(PY) benchmarks/bench_gaze.py
 	$(PY) benchmarks/bench_glints.py
 	$(PY) benchmarks/bench_render.py

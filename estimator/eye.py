@@ -4,7 +4,10 @@ Böhme et al. (2008), as used in Sec. 2.1 of the SCET paper: the cornea is a sph
 r_c whose centre sits r_co in front of the eyeball rotation centre c_e, so a rotation of the eye
 moves the cornea (a moving spherical mirror). The cap ends at the limbus, ``limbus_depth_m``
 behind the corneal apex. The optical and visual axes coincide here (no angle kappa), as in the
-paper's simulation.
+paper's simulation. The cornea may also be aspheric (``cornea_asphericity`` Q != 0): a conic
+of revolution about the optical axis with apex radius r_c and its apex where the sphere's is,
+whose glints :mod:`estimator.geometry.conic` computes exactly; the cornea centre stays the
+apex's centre of curvature.
 
 Eye rotations are Fick angles: ``yaw`` about the world vertical (positive toward +x), then
 ``pitch`` about the rotated horizontal axis (positive up). At yaw = pitch = 0 the eye looks
@@ -17,7 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .geometry import as_points, project_glints
+from .geometry import as_points, project_glints, project_glints_conic
 
 #: Böhme et al. (2008) eye: corneal radius, rotation-centre-to-cornea-centre distance and
 #: limbus depth behind the apex, all in metres. Other corneal radii scale the last two.
@@ -29,6 +32,13 @@ CORNEA_REFRACTIVE_INDEX = 1.376
 #: sequence up to ~500 deg/s (Baloh et al. 1975, the asymptote :mod:`scet_render.motion`
 #: renders) and reach 600-700 deg/s in the largest saccades; 600 deg/s covers them.
 EYE_SPEED_MAX_DEG_S = 600.0
+#: Accepted corneal asphericity Q (conic constant; 0 is the sphere): -1 < Q <= 1. Q <= -1 is a
+#: paraboloid or hyperboloid, not a closed cornea (and no ellipsoid for the renderer); Q > 1 an
+#: oblate cap flatter than any measured cornea. Human corneas measure Q = -0.26 +/- 0.18 (SD;
+#: Kiely et al. 1982); Navarro's model eye uses -0.26, PyEtSimul's conic cornea -0.10 and
+#: gkaModelEye's -0.454.
+ASPHERICITY_MIN = -1.0
+ASPHERICITY_MAX = 1.0
 
 
 def gaze_direction(yaw_rad, pitch_rad) -> np.ndarray:
@@ -67,15 +77,29 @@ class Eye:
     cornea_offset_m: float = BOHME_CORNEA_OFFSET_M * 7.8e-3 / BOHME_CORNEA_RADIUS_M
     limbus_depth_m: float = BOHME_LIMBUS_DEPTH_M * 7.8e-3 / BOHME_CORNEA_RADIUS_M
     refractive_index: float = CORNEA_REFRACTIVE_INDEX
+    #: Conic constant Q of the corneal surface about the optical axis (0: the sphere). The apex
+    #: stays where the sphere's is; ``cornea_radius_m`` is the apex radius of curvature and
+    #: :meth:`cornea_center` the apex's centre of curvature (the sphere's centre).
+    cornea_asphericity: float = 0.0
 
     def __post_init__(self):
         c = as_points(self.rotation_center_m, "rotation_center_m").reshape(3).copy()
         c.setflags(write=False)
         object.__setattr__(self, "rotation_center_m", c)
-        for name in ("cornea_radius_m", "cornea_offset_m", "limbus_depth_m", "refractive_index"):
+        for name in ("cornea_radius_m", "cornea_offset_m", "limbus_depth_m", "refractive_index",
+                     "cornea_asphericity"):
             object.__setattr__(self, name, float(getattr(self, name)))
         if not 0 < self.limbus_depth_m < 2 * self.cornea_radius_m:
             raise ValueError("limbus depth must lie between 0 and the corneal diameter")
+        q = self.cornea_asphericity
+        if not ASPHERICITY_MIN < q <= ASPHERICITY_MAX:
+            raise ValueError(f"cornea_asphericity (Q) must lie in ({ASPHERICITY_MIN:g}, "
+                             f"{ASPHERICITY_MAX:g}], got {q}")
+        if q != 0 and not self.limbus_depth_m < self.cornea_semi_axes_m[0]:
+            # The conic's cap is the graph over the limbus disk only in front of its equator.
+            raise ValueError(f"limbus depth {self.limbus_depth_m} m must lie in front of the "
+                             f"conic cornea's equator ({self.cornea_semi_axes_m[0]} m behind "
+                             "the apex)")
 
     @classmethod
     def scaled(cls, rotation_center_m, cornea_radius_m: float, **kwargs) -> "Eye":
@@ -92,9 +116,28 @@ class Eye:
         return 1.0 - self.limbus_depth_m / self.cornea_radius_m
 
     @property
+    def cornea_semi_axes_m(self) -> tuple[float, float]:
+        """(a, b): the conic cornea's ellipsoid semi-axes along and across the optical axis,
+        R / (1 + Q) and R / sqrt(1 + Q); (R, R) for the sphere."""
+        k = 1.0 + self.cornea_asphericity
+        return self.cornea_radius_m / k, self.cornea_radius_m / float(np.sqrt(k))
+
+    @property
     def limbus_radius_m(self) -> float:
-        c = self.cap_cos_min
-        return self.cornea_radius_m * float(np.sqrt(max(0.0, 1.0 - c * c)))
+        """Radius of the limbus circle, ``limbus_depth_m`` behind the apex on the corneal
+        surface: r² = 2 R z - (1 + Q) z² (the sphere's R sin(cap angle) when Q = 0)."""
+        if self.cornea_asphericity == 0:
+            c = self.cap_cos_min
+            return self.cornea_radius_m * float(np.sqrt(max(0.0, 1.0 - c * c)))
+        z, R = self.limbus_depth_m, self.cornea_radius_m
+        return float(np.sqrt(max(0.0, 2 * R * z - (1.0 + self.cornea_asphericity) * z * z)))
+
+    def cornea_ellipsoid_center(self, yaw_rad=0.0, pitch_rad=0.0) -> np.ndarray:
+        """(..., 3) centre of the conic cornea's ellipsoid, a = R / (1 + Q) behind the apex
+        (the cornea centre when Q = 0)."""
+        d = gaze_direction(yaw_rad, pitch_rad)
+        a = self.cornea_semi_axes_m[0]
+        return self.rotation_center_m + (self.cornea_offset_m + self.cornea_radius_m - a) * d
 
     def cornea_center(self, yaw_rad, pitch_rad) -> np.ndarray:
         """(..., 3) cornea centre for Fick angles."""
@@ -109,12 +152,25 @@ class Eye:
                cornea_radius_m: float | None = None):
         """Noise-free glints of this eye rotated to (yaw, pitch) (Fick angles, any batch shape):
         the closed-form projection (:func:`estimator.geometry.project_glints`) with the corneal
-        cap test. ``cornea_radius_m`` overrides r_c (a calibrated or perturbed eye).
+        cap test, or for an aspheric cornea (Q != 0) the exact reflection on the conic
+        (:func:`estimator.geometry.project_glints_conic`) with the cap ending at the limbus
+        plane. ``cornea_radius_m`` overrides r_c (a calibrated or perturbed eye; with Q != 0 the
+        apex radius, about the same centre).
 
-        Returns ``(glints_px (..., n, 2), visible (..., n), cornea_center_m (..., 3))``.
+        Returns ``(glints_px (..., n, 2), visible (..., n), cornea_center_m (..., 3))``; the
+        cornea centre is the centre of curvature at the apex (the sphere's centre) for any Q.
         """
         r_c = self.cornea_radius_m if cornea_radius_m is None else float(cornea_radius_m)
         center = self.cornea_center(yaw_rad, pitch_rad)
+        lights = np.asarray(lights_world_m, dtype=np.float64)
+        if self.cornea_asphericity != 0:
+            axis = gaze_direction(yaw_rad, pitch_rad)
+            # As for the sphere, an overriding r_c keeps the centre (and the cap's angular
+            # extent: the limbus depth scales with r_c).
+            glints, visible = project_glints_conic(
+                camera, center + r_c * axis, axis, r_c, self.cornea_asphericity, lights,
+                limbus_depth_m=self.limbus_depth_m * r_c / self.cornea_radius_m)
+            return glints, visible, center
         glints, visible = project_glints(camera, center, r_c,
                                          np.asarray(lights_world_m, dtype=np.float64),
                                          cornea_axis=gaze_direction(yaw_rad, pitch_rad),

@@ -19,7 +19,14 @@ from typing import Any
 import numpy as np
 
 from .errors import SceneError
-from .eye import BOHME_CORNEA_OFFSET_M, BOHME_CORNEA_RADIUS_M, BOHME_LIMBUS_DEPTH_M, Eye
+from .eye import (
+    ASPHERICITY_MAX,
+    ASPHERICITY_MIN,
+    BOHME_CORNEA_OFFSET_M,
+    BOHME_CORNEA_RADIUS_M,
+    BOHME_LIMBUS_DEPTH_M,
+    Eye,
+)
 from .geometry import Camera, RigidPose, look_at_rotation, rotation_from_vector, rotation_matrix
 from .setup import DistanceSensor, LightGroup, LightRig, Screen, Sensor, Setup, Strobe
 
@@ -242,8 +249,16 @@ def _read_eye(t: _Table) -> Eye:
     limbus = t.quantity("limbus_depth", "length", default=BOHME_LIMBUS_DEPTH_M * s,
                         required=False, lo=0.5e-3, hi=r_c * 1.5)
     n = t.number("refractive_index", 1.376, required=False, lo=1.0, hi=2.0)
+    q = t.number("cornea_asphericity", 0.0, required=False)
+    if not ASPHERICITY_MIN < q <= ASPHERICITY_MAX:
+        raise t.error("cornea_asphericity", f"expected a conic constant {ASPHERICITY_MIN:g} < Q <= "
+                      f"{ASPHERICITY_MAX:g} (Q <= -1 is a paraboloid or hyperboloid, not a closed "
+                      f"cornea; Q > 1 is flatter than any measured one), got {q:g}")
+    if q != 0 and limbus >= r_c / (1.0 + q):
+        raise t.error("cornea_asphericity", f"the limbus ({limbus * 1e3:.3f} mm behind the apex) "
+                      f"must lie in front of the conic's equator ({r_c / (1 + q) * 1e3:.3f} mm)")
     t.finish()
-    return Eye(center, r_c, offset, limbus, n)
+    return Eye(center, r_c, offset, limbus, n, q)
 
 
 def _read_camera(t: _Table, eye: Eye) -> Camera:

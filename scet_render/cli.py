@@ -24,7 +24,9 @@ def _describe(setup) -> str:
             f"{np.round(cam.position_m * 1e3, 2).tolist()} mm\n"
             f"  eye r_c = {setup.eye.cornea_radius_m * 1e3:g} mm, r_co = "
             f"{setup.eye.cornea_offset_m * 1e3:.3f} mm, limbus {setup.eye.limbus_depth_m * 1e3:.3f} mm "
-            f"behind the apex\n"
+            f"behind the apex"
+            + (f", asphericity Q = {setup.eye.cornea_asphericity:g}" if setup.eye.cornea_asphericity else "")
+            + "\n"
             f"  {setup.lights.count} lights in {len(setup.lights.groups)} group(s): "
             + ", ".join(f"{g.name} ({g.kind}, {g.count})" for g in setup.lights.groups) + "\n"
             f"  sensor S = {sen.total_lines}, N = {sen.visible_lines}, frame {sen.frame_period_s * 1e3:g} ms, "

@@ -1,7 +1,9 @@
 """Feature-level simulator: gaze targets -> eye rotation -> cornea centre -> glints (+ noise).
 
 This is the framework of Böhme et al. (2008) that the SCET paper's Sec. 3 runs on: the only
-image features are the glints, computed in closed form (:func:`estimator.geometry.project_glints`)
+image features are the glints, computed in closed form (:func:`estimator.geometry.project_glints`;
+on an aspheric cornea, ``cornea_asphericity`` != 0, the exact conic reflection of
+:func:`estimator.geometry.project_glints_conic`, both through :meth:`estimator.eye.Eye.glints`)
 and perturbed by the feature position error e_f, uniform in [-e_f, e_f] pixels on each axis
 (or, as an option, Gaussian with standard deviation e_f). Vectorised over targets and lights.
 """

@@ -38,7 +38,7 @@ from .layout import (
     SceneOptions,
     eye_layout,
 )
-from .meshes import cornea_mesh, eye_part_transforms, eyelid_meshes, sclera_opacity, skin_mesh
+from .meshes import cornea_mesh, cornea_opacity, eye_part_transforms, eyelid_meshes, sclera_opacity, skin_mesh
 from .rolling_shutter import (
     SPEED_SAMPLES_PER_PERIOD,
     BandedRenderer,
@@ -71,7 +71,7 @@ __all__ = [
     "PUPIL_OFFSET_M", "FACE_BEHIND_CENTER_M", "SCENE_UNITS_PER_M", "FILM_TO_OPENCV_PX",
     "SCLERA_MASK_TEXELS", "CORNEA_MODES", "CORNEA_GEOMETRIES", "CHANNEL_MODES", "MOVING_KEYS",
     "SceneOptions", "EyeLayout", "eye_layout", "cornea_mesh", "eyelid_meshes", "skin_mesh",
-    "sclera_opacity", "eye_part_transforms", "SPEED_SAMPLES_PER_PERIOD", "FrameRender",
+    "sclera_opacity", "cornea_opacity", "eye_part_transforms", "SPEED_SAMPLES_PER_PERIOD", "FrameRender",
     "FramePlan", "motion_instants", "plan_frame", "BandedRenderer", "sensor_dict",
     "SceneDescription", "describe_scene", "EyeScene", "CORNEA_FRESNEL_REFLECTANCE",
     "REFERENCE_EMITTER_RADIANCE", "GLINT_SATURATION_FRACTION", "OV5647_FULL_WELL_E",

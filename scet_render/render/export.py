@@ -26,12 +26,15 @@ from .scene import describe_scene
 _TAGS = {"scene": "scene", "path": "integrator", "perspective": "sensor", "independent": "sampler",
          "hdrfilm": "film", "box": "rfilter", "disk": "shape", "sphere": "shape", "ply": "shape",
          "diffuse": "bsdf", "twosided": "bsdf", "dielectric": "bsdf", "conductor": "bsdf",
-         "mask": "bsdf", "bitmap": "texture", "area": "emitter", "constant": "emitter"}
+         "mask": "bsdf", "bitmap": "texture", "area": "emitter", "constant": "emitter",
+         "shapegroup": "shape", "instance": "shape"}
 
 
 def _xml_node(parent, key, value):
     if isinstance(value, dict) and value.get("type") == "rgb":
         ET.SubElement(parent, "rgb", name=key, value=", ".join(f"{v:.9g}" for v in value["value"]))
+    elif isinstance(value, dict) and value.get("type") == "ref":
+        ET.SubElement(parent, "ref", id=value["id"], name=key)
     elif isinstance(value, dict):
         node = ET.SubElement(parent, _TAGS[value["type"]], type=value["type"], id=key)
         if _TAGS[value["type"]] == "texture":
@@ -62,6 +65,18 @@ def _plain_dielectric(bsdf: dict) -> dict:
     """Mitsuba's ``dielectric`` with the interface of a :data:`CORNEA_BSDF_TYPE` entry."""
     return {"type": "dielectric", "int_ior": bsdf["int_ior"], "ext_ior": bsdf["ext_ior"],
             "specular_transmittance": {"type": "rgb", "value": list(bsdf["transmittance"])}}
+
+
+def _without_plugin(value, found: list):
+    """``value`` with every :data:`CORNEA_BSDF_TYPE` entry, at any depth (an aspheric cornea
+    nests it in a shapegroup and a mask), replaced by :func:`_plain_dielectric`; the replaced
+    entries are appended to ``found``."""
+    if not isinstance(value, dict):
+        return value
+    if value.get("type") == CORNEA_BSDF_TYPE:
+        found.append(value)
+        return _plain_dielectric(value)
+    return {k: _without_plugin(v, found) for k, v in value.items()}
 
 
 def export_mitsuba(setup: Setup, out_dir: str | Path, options: SceneOptions | None = None, *,
@@ -103,14 +118,14 @@ def export_mitsuba(setup: Setup, out_dir: str | Path, options: SceneOptions | No
     root = ET.Element("scene", version="3.0.0")
     for key, value in desc.objects.items():
         if key != "type":
-            bsdf = value.get("bsdf") if isinstance(value, dict) else None
-            if isinstance(bsdf, dict) and bsdf.get("type") == CORNEA_BSDF_TYPE:
+            found = []
+            value = _without_plugin(value, found)
+            for bsdf in found:
                 root.append(ET.Comment(
                     f" {key}: SCET's cornea BSDF ({CORNEA_BSDF_TYPE}, reflection sampled with "
                     f"probability {bsdf['reflect_probability']:g}) is a Python plugin that the "
                     "mitsuba command cannot load: written as Mitsuba's dielectric (same image "
                     "in the limit, glints noisier at low spp) "))
-                value = {**value, "bsdf": _plain_dielectric(bsdf)}
             _xml_node(root, key, value)
     ET.indent(root)
     path = out / "scene.xml"

@@ -70,6 +70,10 @@ def cornea_mesh(setup: Setup, edge_m: float = 0.15e-3):
     tessellation is the facets' sagitta, below edge² / (8 r_c) (0.4 µm at 0.15 mm edges).
     """
     eye = setup.eye
+    if eye.cornea_asphericity != 0:
+        raise ValueError(f"{setup.name}: the mesh cornea is spherical; an aspheric cornea "
+                         f"(cornea_asphericity = {eye.cornea_asphericity:g}) renders as an "
+                         "analytic ellipsoid (cornea_geometry='sphere')")
     half = math.acos(eye.cap_cos_min)
     rings = max(2, math.ceil(half * eye.cornea_radius_m / edge_m))
     thetas = np.linspace(0.0, half, rings + 1)
@@ -135,6 +139,24 @@ def sclera_opacity(layout: EyeLayout, texels: int = SCLERA_MASK_TEXELS) -> np.nd
     return np.repeat(opacity[:, None], 2, axis=1)
 
 
+def cornea_opacity(setup: Setup, texels: int = SCLERA_MASK_TEXELS) -> np.ndarray:
+    """(texels, 2) float32 opacity of a conic cornea's unit sphere over its polar coordinate.
+
+    The aspheric cornea is a unit sphere scaled to the ellipsoid (semi-axes b, b, a about the
+    gaze, :func:`eye_part_transforms`); its polar angle θ from the gaze maps to the depth
+    z = a (1 - cos θ) behind the apex. Opaque (1) on the cap, down to one texel beyond the
+    limbus (the sliver hides inside the sclera, so no crack opens), transparent beyond: a
+    prolate ellipsoid reaches far behind the eyeball (2a = 28.6 mm at Q = -0.454) and must
+    not show through it.
+    """
+    eye = setup.eye
+    a = eye.cornea_semi_axes_m[0]
+    limbus = math.acos(1.0 - eye.limbus_depth_m / a)
+    theta = (np.arange(texels) + 0.5) * np.pi / texels
+    opacity = (theta <= limbus + np.pi / texels).astype(np.float32)
+    return np.repeat(opacity[:, None], 2, axis=1)
+
+
 def _to_scene_units(M: np.ndarray) -> np.ndarray:
     """An object-to-world matrix in metres -> object-to-scene (scene units)."""
     return np.diag([SCENE_UNITS_PER_M] * 3 + [1.0]) @ M
@@ -144,8 +166,9 @@ def eye_part_transforms(setup: Setup, layout: EyeLayout, yaw_rad: float, pitch_r
                         pupil_radius_m: float) -> dict[str, np.ndarray]:
     """(4, 4) object-to-scene matrices (scene units) of the analytic eye parts at a pose.
 
-    ``cornea``: unit sphere to the corneal sphere. ``sclera``: unit sphere to the eyeball, its
-    local +z along the gaze. ``iris``/``pupil``: Mitsuba's unit disk (normal +z) to disks facing
+    ``cornea``: unit sphere to the corneal sphere, or for an aspheric cornea (Q != 0) to its
+    ellipsoid (semi-axes b, b across and a along the gaze, local +z along the gaze, centred a
+    behind the apex). ``sclera``: unit sphere to the eyeball, its local +z along the gaze. ``iris``/``pupil``: Mitsuba's unit disk (normal +z) to disks facing
     the cornea in the limbus plane (the pupil 20 µm in front).
     """
     R = eye_rotation_matrix(yaw_rad, pitch_rad)
@@ -154,9 +177,14 @@ def eye_part_transforms(setup: Setup, layout: EyeLayout, yaw_rad: float, pitch_r
     face = R @ _GAZE_FRAME  # local +z along the gaze
     r_c, r_s = setup.eye.cornea_radius_m, layout.sclera_radius_m
     r_iris = layout.limbus_radius_m * 1.002  # reaches under the sclera's mask edge
+    if setup.eye.cornea_asphericity == 0:
+        cornea = _affine(translation=setup.eye.cornea_center(yaw_rad, pitch_rad),
+                         scale=(r_c, r_c, r_c))
+    else:
+        a, b = setup.eye.cornea_semi_axes_m
+        cornea = _affine(face, setup.eye.cornea_ellipsoid_center(yaw_rad, pitch_rad), (b, b, a))
     metres = {
-        "cornea": _affine(translation=setup.eye.cornea_center(yaw_rad, pitch_rad),
-                          scale=(r_c, r_c, r_c)),
+        "cornea": cornea,
         "sclera": _affine(face, c_e, (r_s, r_s, r_s)),
         "iris": _affine(face, c_e + layout.limbus_plane_m * gaze, (r_iris, r_iris, 1.0)),
         "pupil": _affine(face, c_e + (layout.limbus_plane_m + PUPIL_OFFSET_M) * gaze,

@@ -4,7 +4,11 @@ Geometry (SI units, world frame of the SCET paper's Fig. 3, eye in primary posit
 
 * **cornea**: the sphere of radius r_c around the cornea centre (Sec. 2.1, Böhme's model), an
   exact analytic sphere by default (glints land where the closed form says); with
-  ``cornea_geometry="mesh"`` a trimesh-built cap up to the limbus with radial vertex normals;
+  ``cornea_geometry="mesh"`` a trimesh-built cap up to the limbus with radial vertex normals.
+  An aspheric cornea (``cornea_asphericity`` Q != 0) is the conic's exact ellipsoid: a unit
+  sphere in a shapegroup whose instance's ``to_world`` scales it (it moves like the sphere,
+  without recompiling), masked transparent beyond the limbus (:func:`cornea_opacity`); its
+  glints land where :func:`estimator.geometry.project_glints_conic` says;
 * **sclera**: an analytic sphere around the rotation centre through the limbus circle whose
   cap inside the limbus is cut away by an opacity mask (the sphere's polar texture coordinate
   is the angle from the gaze). The cornea protrudes from it, and the sclera hides the rest of
@@ -61,6 +65,7 @@ from .meshes import (
     _to_scene_units,
     _trimesh,
     cornea_mesh,
+    cornea_opacity,
     eye_part_transforms,
     eyelid_meshes,
     sclera_opacity,
@@ -188,6 +193,16 @@ def describe_scene(setup: Setup, options: SceneOptions = SceneOptions(), *, spp:
                                     np.asarray(mesh.vertex_normals) @ R.T)
         objects["cornea"] = {"type": "ply", "filename": "meshes/cornea.ply",
                              "face_normals": False, "bsdf": cornea_bsdf}
+    elif setup.eye.cornea_asphericity != 0:
+        # An exact ellipsoid: a unit sphere in a shapegroup, scaled by its instance's
+        # to_world (a scaled sphere alone renders a sphere; DESIGN.md, rendering notes).
+        objects["cornea_surface"] = {"type": "shapegroup", "surface": {
+            "type": "sphere", "bsdf": {
+                "type": "mask", "bsdf": cornea_bsdf,
+                "opacity": {"type": "bitmap", "filename": "textures/cornea_opacity.png",
+                            "raw": True, "filter_type": "nearest"}}}}
+        objects["cornea"] = {"type": "instance", "to_world": T["cornea"],
+                             "shapegroup": {"type": "ref", "id": "cornea_surface"}}
     else:
         objects["cornea"] = {"type": "sphere", "to_world": T["cornea"], "bsdf": cornea_bsdf}
     L = options.light_radiance
@@ -203,7 +218,10 @@ def describe_scene(setup: Setup, options: SceneOptions = SceneOptions(), *, spp:
                               "radiance": _rgb((0, A, 0) if split else (A, A, A))}
     for mesh in meshes.values():
         mesh.apply_scale(SCENE_UNITS_PER_M)
-    return SceneDescription(objects, meshes, {"sclera_opacity": sclera_opacity(layout)}, layout)
+    textures = {"sclera_opacity": sclera_opacity(layout)}
+    if "cornea_surface" in objects:
+        textures["cornea_opacity"] = cornea_opacity(setup)
+    return SceneDescription(objects, meshes, textures, layout)
 
 
 # --------------------------------------------------------------------------- loading
