@@ -22,7 +22,7 @@ from scet_render.render import (
 )
 from scet_render.simulate import ground_truth_glints
 from tests.scet_render.test_render_scene import _first_hits
-from tests.scet_render.test_rolling_shutter import TOL, _centroids, _isolated
+from tests.scet_render.test_rolling_shutter import TOL, strobe_centroids
 
 #: The issue's conic (apex 7.8 mm, PyEtSimul's Q = -0.25) and a strongly prolate one.
 Q = -0.25
@@ -128,14 +128,8 @@ def test_rendered_glints_land_on_the_conic_labels(mi, jit, conic):
     sphere = load_scene("paper_sim")
     errors, to_sphere = [], []
     for yaw, pitch in [(0.0, 0.0), (0.2, -0.12)]:
-        g, vis, _ = ground_truth_glints(conic, yaw, pitch)
-        ok = _isolated(g, vis)
-        rows = (max(0, int(g[ok, 1].min()) - 8), min(480, int(g[ok, 1].max()) + 9))
-        strobe, _ = renderer.render_rows(yaw, pitch, *rows, seed=5)
-        img = np.zeros((480, 640), np.float32)
-        img[rows[0]:rows[1]] = strobe
-        c = _centroids(img, g[ok], g[vis])
-        errors.append(np.linalg.norm(c - g[ok], axis=1))
+        c, labels, ok = strobe_centroids(renderer, conic, yaw, pitch)
+        errors.append(np.linalg.norm(c - labels, axis=1))
         g0, v0, _ = ground_truth_glints(sphere, yaw, pitch)
         to_sphere.append(np.linalg.norm(c - g0[ok], axis=1))
     e = np.concatenate(errors)
@@ -187,13 +181,8 @@ def test_default_cornea_glints_land_on_the_conic_labels(mi, jit, conic):
     renderer = BandedRenderer(conic, spp=16, ambient=0.0, seed=11)
     errors = []
     for yaw, pitch in [(0.0, 0.0), (0.2, -0.12)]:
-        g, vis, _ = ground_truth_glints(conic, yaw, pitch)
-        ok = _isolated(g, vis)
-        rows = (max(0, int(g[ok, 1].min()) - 8), min(480, int(g[ok, 1].max()) + 9))
-        strobe, _ = renderer.render_rows(yaw, pitch, *rows, seed=5)
-        img = np.zeros((480, 640), np.float32)
-        img[rows[0]:rows[1]] = strobe
-        errors.append(np.linalg.norm(_centroids(img, g[ok], g[vis]) - g[ok], axis=1))
+        c, labels, _ = strobe_centroids(renderer, conic, yaw, pitch)
+        errors.append(np.linalg.norm(c - labels, axis=1))
     e = np.concatenate(errors)
     assert np.isfinite(e).all() and e.size >= 30
     assert np.median(e) <= TOL.glint_median_px, f"median {np.median(e):.3f} px"

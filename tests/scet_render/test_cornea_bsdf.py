@@ -139,20 +139,14 @@ def test_default_cornea_glints_land_on_the_closed_form(mi, paper):
     0.5 px; benchmarks/bench_cornea.py measured 0.08 / 0.25 px over 4 poses, Mitsuba's own
     dielectric 0.49 / 1.8 px)."""
     from scet_render.render import BandedRenderer
-    from scet_render.simulate import ground_truth_glints
-    from tests.scet_render.test_rolling_shutter import TOL, _centroids, _isolated
+    from tests.scet_render.test_rolling_shutter import TOL, strobe_centroids
 
     renderer = BandedRenderer(paper, spp=16, ambient=0.0, seed=11)
     assert renderer.options.cornea == "dielectric"
     errors = []
     for yaw, pitch in [(0.0, 0.0), (0.2, -0.12)]:
-        g, vis, _ = ground_truth_glints(paper, yaw, pitch)
-        ok = _isolated(g, vis)
-        rows = (max(0, int(g[ok, 1].min()) - 8), min(480, int(g[ok, 1].max()) + 9))
-        strobe, _ = renderer.render_rows(yaw, pitch, *rows, seed=5)
-        img = np.zeros((480, 640), np.float32)
-        img[rows[0]:rows[1]] = strobe
-        errors.append(np.linalg.norm(_centroids(img, g[ok], g[vis]) - g[ok], axis=1))
+        c, labels, _ = strobe_centroids(renderer, paper, yaw, pitch)
+        errors.append(np.linalg.norm(c - labels, axis=1))
     e = np.concatenate(errors)
     assert np.isfinite(e).all() and e.size >= 30
     assert np.median(e) <= TOL.glint_median_px, f"median {np.median(e):.3f} px"

@@ -194,17 +194,25 @@ def _isolated(glints_px, visible):
     return visible & (d.min(axis=1) > MIN_GLINT_SPACING_PX)
 
 
+def strobe_centroids(renderer, setup, yaw, pitch, seed=5):
+    """One strobe rendered over the rows of its isolated glints at the eye pose (yaw,
+    pitch): their measured centroids (k, 2), their labels (k, 2) and which visible glints
+    they are (n,) bool."""
+    g, vis, _ = ground_truth_glints(setup, yaw, pitch)
+    ok = _isolated(g, vis)
+    h, w = setup.camera.height_px, setup.camera.width_px
+    rows = (max(0, int(g[ok, 1].min()) - 8), min(h, int(g[ok, 1].max()) + 9))
+    strobe, _ = renderer.render_rows(yaw, pitch, *rows, seed=seed)
+    img = np.zeros((h, w), np.float32)
+    img[rows[0]:rows[1]] = strobe
+    return _centroids(img, g[ok], g[vis]), g[ok], ok
+
+
 def test_single_strobe_glints_land_on_the_closed_form(glint_renderer, paper):
     errors = []
     for yaw, pitch in [(0.0, 0.0), (0.2, -0.12)]:
-        g, vis, _ = ground_truth_glints(paper, yaw, pitch)
-        ok = _isolated(g, vis)
-        rows = (max(0, int(g[ok, 1].min()) - 8), min(480, int(g[ok, 1].max()) + 9))
-        strobe, _ = glint_renderer.render_rows(yaw, pitch, *rows, seed=5)
-        img = np.zeros((480, 640), np.float32)
-        img[rows[0]:rows[1]] = strobe
-        c = _centroids(img, g[ok], g[vis])
-        errors.append(np.linalg.norm(c - g[ok], axis=1))
+        c, labels, _ = strobe_centroids(glint_renderer, paper, yaw, pitch)
+        errors.append(np.linalg.norm(c - labels, axis=1))
     e = np.concatenate(errors)
     assert np.isfinite(e).all() and e.size >= 30
     assert np.median(e) <= TOL.glint_median_px, f"median {np.median(e):.3f} px"
