@@ -66,14 +66,27 @@ class CompareResult:
         return [r for r in self.rows if not r.passed]
 
     def to_dict(self) -> dict:
-        return {"format": "scet-compare", "version": 1, "capture": str(self.capture_dir),
+        """JSON-ready (NaN as null)."""
+        return _clean({"format": "scet-compare", "version": 1, "capture": str(self.capture_dir),
                 "scene": self.setup.name, "frames": list(self.frames),
                 "timing": self.timing.to_dict(), "sensor": self.sensor,
                 "geometry": self.geometry, "findings": self.findings,
                 "gaze_difference_deg": {str(k): float(np.median(v))
                                         for k, v in sorted(self.gaze_deg.items())},
                 "rows": [r.to_dict() for r in self.rows], "notes": list(self.notes),
-                "flagged": len(self.flagged)}
+                "flagged": len(self.flagged)})
+
+
+def _clean(v):
+    if isinstance(v, dict):
+        return {str(k): _clean(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_clean(x) for x in v]
+    if isinstance(v, (float, np.floating)):
+        return float(v) if math.isfinite(v) else None
+    if isinstance(v, np.integer):
+        return int(v)
+    return v
 
 
 def nominal_calibration(setup: Setup) -> Calibration:
