@@ -120,17 +120,26 @@ def _track(setup, calibration, method, images, starts):
     return out
 
 
-def _signal_ratio(captures, expected, black_c, black_n, clip_share=3.0):
-    """Σ (capture - black) / Σ (expected - black) over lit, glint-free pixels of all frames."""
+def _signal_ratio(captures, expected, black_c, black_n, window_px=7):
+    """Σ (capture - black) / Σ (expected - black) over lit, glint-free pixels of all frames.
+
+    The pixels are chosen on the render smoothed over ``window_px`` and with a margin around
+    every glint of either image: a cut on single noisy pixels (28 % Monte Carlo noise at 4 spp)
+    keeps their bright or dark tail and biased the ratio by 4-7 % (measured)."""
+    from scipy.ndimage import maximum_filter, uniform_filter
+
     num = den = 0.0
     for f in captures:
         e = expected[f] - black_n
         c = captures[f].astype(np.float64) - black_c
-        lit = e[e > 0]
+        smooth = uniform_filter(e, window_px)
+        lit = smooth[smooth > 0]
         if not lit.size:
             continue
         level = float(np.percentile(lit, 95))
-        sel = (e > 0.2 * level) & (e < clip_share * level) & (c < clip_share * level * 1.5)
+        glint = maximum_filter((smooth > 2 * level) | (e > 4 * level) | (c > 4 * level),
+                               window_px) > 0
+        sel = (smooth > 0.2 * level) & ~glint
         num += float(c[sel].sum())
         den += float(e[sel].sum())
     return num / den if den > 0 else math.nan

@@ -78,8 +78,8 @@ def test_an_exposure_one_line_short_is_found_and_measured(results):
 
 def test_a_20_percent_gain_error_is_found_and_measured(results):
     r = results("gain")
-    # the response over the scene's sensor model: 1.2, to the 8 % the tolerance allows
-    assert abs(r.findings["response_ratio"] - 1.2) < 0.08
+    # the response over the scene's sensor model: 1.2, to 2 % (unperturbed: 0.997-1.002)
+    assert abs(r.findings["response_ratio"] - 1.2) < 0.02
     row = next(x for x in r.rows if x.quantity.startswith("response"))
     assert not row.passed and row.cause == "sensor"
     # the render made with the estimated gain matches the capture's glint energies again
