@@ -45,7 +45,7 @@ def measured_setup(setup: Setup, timing) -> Setup:
     angles = [2 * math.pi * ((ph + n * dt) % period) / period
               for n, ph in zip(frames, timing.phase_s)]
     mean = math.atan2(np.mean(np.sin(angles)), np.mean(np.cos(angles))) if angles else 0.0
-    phase = (mean % (2 * math.pi)) / (2 * math.pi) * period
+    phase = mean / (2 * math.pi) * period  # in (-Δ_clk / 2, Δ_clk / 2]
     sensor = replace(setup.sensor, total_lines=int(round(timing.total_lines)),
                      frame_period_s=dt, exposure_s=float(timing.exposure_s))
     strobe = replace(setup.strobe, pulse_s=float(timing.pulse_s), period_s=float(period),

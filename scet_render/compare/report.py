@@ -59,12 +59,12 @@ def _plots(result, out: Path) -> list[str]:
     ax[0].set_ylabel("row mean above black (DN)")
     ax[0].legend()
     ax[0].set_title("per-row mean profile")
-    bins = np.arange(-30, 31, 1.0)
+    bins = np.arange(-40.5, 41.0, 1.0)  # integer differences of integer DN
     for img, label in ((cap, "capture"), (ren, "render")):
-        ax[1].hist(np.diff(img, axis=1).ravel() / math.sqrt(2), bins=bins, histtype="step",
-                   label=label, density=True)
+        ax[1].hist(np.diff(img, axis=1).ravel(), bins=bins, histtype="step", label=label,
+                   density=True)
     ax[1].set_yscale("log")
-    ax[1].set_xlabel("neighbour difference / sqrt 2 (DN)")
+    ax[1].set_xlabel("difference of horizontal neighbours (DN)")
     ax[1].set_title("noise histogram")
     ax[1].legend()
     keys = sorted(result.gaze_deg)

@@ -138,7 +138,7 @@ def verdict_rows(setup, msetup, timing, sensor, geometry, gc, gr, cm, rm, gaze, 
     rows.append(row("geometry", "corneal radius, orbit fit (mm)", "cornea_radius", r_c, r_r,
                     r_c - r_r, "geometry", f"SE {se:.3f} mm; its render "
                     f"{geometry['cornea_radius_mm_render']:.3f} mm",
-                    tolerance=max(0.15, 3 * se) if math.isfinite(se) else None))
+                    tolerance=max(0.1, 3 * se) if math.isfinite(se) else None))
     excess = gc.systematic_rms_px - max(gr.systematic_rms_px, gc.systematic_floor_px) \
         if math.isfinite(gr.systematic_rms_px) else math.nan
     rows.append(row("geometry", "per-light glint offsets, RMS (px)", "light_offsets",

@@ -112,8 +112,23 @@ def _open(capture_dir, setup: Setup) -> CaptureFolder:
     return cap
 
 
+def _mapping(calibration: Calibration, method: str) -> str:
+    """The calibration's Eq. (1) mapping for polynomial gaze (as ``scet track`` picks it)."""
+    if method == "geometric":
+        if not calibration.has_orbit:
+            raise CompareError("the calibration has no eye centre and orbit radius, which "
+                               "--method geometric needs")
+        return ""
+    eq1 = sorted(k for k in calibration.mappings if k.startswith("eq1"))
+    if not eq1:
+        raise CompareError(f"the calibration has no Eq. (1) gaze mapping for polynomial gaze "
+                           f"(has {sorted(calibration.mappings)}); use --method geometric")
+    return eq1[-1]
+
+
 def _track(setup, calibration, method, images, starts):
-    tracker = Tracker(setup, calibration, method)
+    mapping = _mapping(calibration, method)
+    tracker = Tracker(setup, calibration, method, **({"mapping": mapping} if mapping else {}))
     out = []
     for f in sorted(images):
         out.extend(tracker.process(images[f], f, starts[f]))
