@@ -28,13 +28,9 @@ from estimator.geometry import project_glints
 from estimator.glints import detect_glints
 from estimator.setup import Setup
 
-__all__ = ["MATCH_RADIUS_PX", "FrameMeasure", "measure_image", "match_glints", "GeometryFit",
+__all__ = ["FrameMeasure", "measure_image", "GeometryFit",
            "fit_geometry", "gaze_differences_deg", "match_identified"]
 
-#: Glints of a capture and its render closer than this (px) are the same glint: the tracker's
-#: poses put the render's glints within ~0.3 px of the capture's (measured, nominal capture),
-#: and neighbouring glints of one band lie >= 5 px apart at 320x240.
-MATCH_RADIUS_PX = 2.0
 #: Detections smaller than this (px) are not counted as clutter: at a few spp a render's
 #: specular sparkle (Monte Carlo fireflies) gives ~10-30 one- and two-pixel spots a frame,
 #: different in every render.
@@ -146,17 +142,6 @@ def match_identified(a: FrameMeasure, b: FrameMeasure):
     if not keys:
         return np.zeros((0, 5)), np.zeros((0, 5))
     return (np.array([a.identified[k] for k in keys]), np.array([b.identified[k] for k in keys]))
-
-
-def match_glints(a: FrameMeasure, b: FrameMeasure, radius_px: float = MATCH_RADIUS_PX):
-    """(ia, ib) index pairs of mutual nearest glints within ``radius_px``."""
-    pa, pb = np.stack([a.u_px, a.v_px], 1), np.stack([b.u_px, b.v_px], 1)
-    if not pa.size or not pb.size:
-        return np.zeros(0, int), np.zeros(0, int)
-    dab, jab = cKDTree(pb).query(pa)
-    _, jba = cKDTree(pa).query(pb)
-    ia = np.flatnonzero((dab <= radius_px) & (jba[jab] == np.arange(pa.shape[0])))
-    return ia, jab[ia]
 
 
 @dataclass

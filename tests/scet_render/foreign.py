@@ -77,13 +77,14 @@ def perturbed(setup, kind: str):
     raise ValueError(kind)
 
 
-def foreign_capture(folder, scene_path, kind: str, *, frames=FRAMES, seed=3) -> Path:
+def foreign_capture(folder, scene_path, kind: str, *, frames=FRAMES, seed=3, spp=SPP,
+                    cornea=CORNEA) -> Path:
     """Render ``kind``'s perturbed scene and replay it as a capture of the nominal scene."""
     folder = Path(folder)
     nominal = load_scene(scene_path)
     setup, sensor = perturbed(nominal, kind)
     text = Path(scene_path).read_text(encoding="utf-8")
-    render_dataset(setup, folder / f"{kind}-dataset", frames=frames, spp=SPP, cornea=CORNEA,
+    render_dataset(setup, folder / f"{kind}-dataset", frames=frames, spp=spp, cornea=cornea,
                    seed=seed, sensor=sensor, scene_text=text)
     return replay_dataset(folder / f"{kind}-dataset", folder / f"{kind}-capture",
                           scene=scene_path)

@@ -106,6 +106,21 @@ def test_another_corneal_radius_is_found_and_measured(results):
     assert not row.passed and row.cause == "geometry"
 
 
+@pytest.mark.slow
+def test_the_default_cornea_at_16_spp_passes_unperturbed_and_finds_the_gain(world, tmp_path):
+    # The product's settings (dielectric cornea, 16 spp), 6 frames, ~12 s a capture here:
+    # measured, the unperturbed capture passes every row (glints 0.14 px apart, response
+    # 0.994) and a 20 % gain error reads 1.193.
+    d, scene, setup = world
+    out = {}
+    for kind in ("nominal", "gain"):
+        cap = foreign_capture(tmp_path, scene, kind, frames=6, spp=16, cornea="dielectric")
+        out[kind] = compare_capture(cap, setup, frames=6, spp=16, cornea="dielectric", seed=5)
+    assert out["nominal"].flagged == []
+    assert abs(out["gain"].findings["response_ratio"] - 1.2) < 0.02
+    assert [r.cause for r in out["gain"].flagged] == ["sensor"]
+
+
 def test_cli_writes_report_and_json(results, world, tmp_path, capsys):
     d, scene, _ = world
     results("nominal")
@@ -180,3 +195,37 @@ def test_compare_error_is_an_input_error():
     from estimator.errors import InputError
 
     assert issubclass(CompareError, InputError)
+
+
+def test_a_calibration_file_is_used_and_checked(results, world, tmp_path, capsys):
+    from dataclasses import replace
+
+    from estimator.folders import save_calibration
+    from scet_render.compare import nominal_calibration
+
+    d, scene, setup = world
+    results("nominal")
+    cal = save_calibration(nominal_calibration(setup), tmp_path / "cal.json")
+    args = ["compare", str(d / "nominal-capture"), "--scene", str(scene), "--frames", "3",
+            "--spp", "4", "--cornea", "conductor", "--report-dir", str(tmp_path / "r")]
+    assert main(args + ["--calibration", str(cal)]) == 0
+    assert "0 flagged" in capsys.readouterr().out
+    # polynomial gaze without a mapping, geometric without an orbit: one line each, exit 2
+    line = _one_line_error(capsys, args + ["--calibration", str(cal), "--method", "polynomial"])
+    assert "no Eq. (1) gaze mapping" in line
+    bare = save_calibration(replace(nominal_calibration(setup), orbit_radius_m=float("nan")),
+                            tmp_path / "bare.json")
+    line = _one_line_error(capsys, args + ["--calibration", str(bare)])
+    assert "orbit" in line
+
+
+def test_a_scene_with_another_bit_depth_is_a_clear_error(world, tmp_path, capsys):
+    d, scene, _ = world
+    cap = foreign_capture(tmp_path, scene, "nominal", frames=1)
+    head = cap / "capture.json"
+    doc = json.loads(head.read_text())
+    doc["camera"]["sensor_mode"]["bit_depth"] = 8
+    head.write_text(json.dumps(doc))
+    line = _one_line_error(capsys, ["compare", str(cap), "--scene", str(scene),
+                                    "--report-dir", str(tmp_path / "r")])
+    assert "bit_depth" in line and "10-bit" in line
