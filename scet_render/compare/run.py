@@ -160,6 +160,12 @@ def _signal_ratio(captures, expected, black_c, black_n, window_px=7):
     return num / den if den > 0 else math.nan
 
 
+def _nanmedian(values) -> float:
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v)]
+    return float(np.median(v)) if v.size else math.nan
+
+
 def compare_capture(capture_dir, setup: Setup, *, calibration=None, method: str = "geometric",
                     frames: int = 8, spp: int = 16, cornea: str = "dielectric", seed: int = 0,
                     variant: str | None = None, progress=None) -> CompareResult:
@@ -203,7 +209,7 @@ def compare_capture(capture_dir, setup: Setup, *, calibration=None, method: str 
     fits = [fit_sensor(images[f], full_scale_dn=float(2 ** setup.sensor.bit_depth - 1))
             for f in sorted(images)]
     black_c = float(np.median([s.black_level_dn for s in fits]))
-    K_c = float(np.nanmedian([s.gain_e_per_dn for s in fits]))
+    K_c = _nanmedian([s.gain_e_per_dn for s in fits])
     radiance = render_radiance(msetup, traj, sorted(images), spp=spp, cornea=cornea, seed=seed,
                                variant=variant,
                                progress=(lambda d, t: progress("render", d, t)) if progress else None)
@@ -218,7 +224,7 @@ def compare_capture(capture_dir, setup: Setup, *, calibration=None, method: str 
                for f in radiance}
     rfits = [fit_sensor(renders[f], full_scale_dn=float(2 ** setup.sensor.bit_depth - 1))
              for f in sorted(renders)]
-    K_r = float(np.nanmedian([s.gain_e_per_dn for s in rfits]))
+    K_r = _nanmedian([s.gain_e_per_dn for s in rfits])
     if progress:
         progress("track render", 0, 1)
     ren_samples = _track(msetup, calibration, method, renders, starts)
@@ -232,7 +238,7 @@ def compare_capture(capture_dir, setup: Setup, *, calibration=None, method: str 
               "response_ratio": gain, "ptc_gain_e_per_dn_capture": K_c,
               "ptc_gain_e_per_dn_render": K_r,
               "scene_gain_e_per_dn": 1.0 / k_n,
-              "ptc_pattern_share_capture": float(np.nanmedian([s.pattern_share for s in fits])),
+              "ptc_pattern_share_capture": _nanmedian([s.pattern_share for s in fits]),
               "read_noise_e_model": nominal.read_noise_e}
     geometry = {"cornea_radius_mm_capture": 1e3 * gc.radius_median_m,
                 "cornea_radius_mm_render": 1e3 * gr.radius_median_m,
