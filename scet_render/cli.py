@@ -175,6 +175,37 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+def cmd_compare(args) -> int:
+    import json
+
+    from estimator.folders import load_calibration
+    from estimator.formats import atomic_write
+    from estimator.scene import load_scene
+
+    from .compare import compare_capture
+    from .compare.report import write_report
+
+    setup = load_scene(args.scene)
+    cal = load_calibration(args.calibration) if args.calibration is not None else None
+    bars = StageBars()
+    try:
+        result = compare_capture(args.dir, setup, calibration=cal, method=args.method,
+                                 frames=args.frames, spp=args.spp, cornea=args.cornea,
+                                 seed=args.seed, progress=bars.update)
+    finally:
+        bars.close()
+    path = write_report(result, args.report_dir)
+    if args.json is not None:
+        atomic_write(args.json, json.dumps(result.to_dict(), indent=1, allow_nan=False,
+                                           default=str) + "\n")
+    flagged = result.flagged
+    print(f"{len(result.rows)} quantities compared over frames {result.frames}, "
+          f"{len(flagged)} flagged" + (": " + ", ".join(f"{r.quantity} ({r.cause})"
+                                                        for r in flagged) if flagged else ""))
+    print(f"report: {path}")
+    return 0
+
+
 def cmd_track(args) -> int:
     from estimator.folders import track_folder
     from estimator.live import track_following
@@ -355,6 +386,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_track)
 
     add_dataset_parsers(sub)
+
+    p = sub.add_parser("compare", help="a capture folder against renders of the same frames: "
+                                       "timing, sensor, glints, background, tracker")
+    p.add_argument("dir", type=Path, help="capture folder (capture.json, frames.jsonl, frames/)")
+    p.add_argument("--scene", help=scene_help)
+    p.add_argument("--calibration", type=Path, help="calibration file (default: the scene's "
+                                                     "nominal geometry)")
+    p.add_argument("--method", choices=("polynomial", "geometric"), default="geometric")
+    p.add_argument("--report-dir", type=Path, default=Path("reports"),
+                   help="where compare.md and compare/*.png go (default reports/)")
+    p.add_argument("--frames", type=integer(1, 1000), default=8, help="banded frames compared")
+    p.add_argument("--spp", type=integer(1, MAX_SPP), default=16)
+    p.add_argument("--cornea", choices=("dielectric", "plain_dielectric", "conductor"),
+                   default="dielectric")
+    p.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
+    p.add_argument("--json", type=Path, help="also write the rows and findings as JSON")
+    p.set_defaults(func=cmd_compare)
 
     p = sub.add_parser("validate", help="the main job: render, calibrate, track and compare with "
                                         "ground truth and with the feature-level simulation")

@@ -38,7 +38,7 @@ LAYERS = {
         {"render", "motion"},
         {"simulate", "band_diagram"},
         {"dataset"},
-        {"validate", "reproduce", "design", "study"},
+        {"validate", "reproduce", "design", "study", "compare"},
         {"cli", "cli_data", "cli_progress", "cli_studies", "runner", "__main__"},
     ],
 }
