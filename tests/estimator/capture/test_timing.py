@@ -111,3 +111,4 @@ def test_many_bright_glints_do_not_hide_the_bands(tmp_path):
     line_s = sensor.frame_period_s / sensor.total_lines
     assert abs(m.total_lines - 524) < 0.5  # the half a line
     assert abs(m.exposure_s - sensor.exposure_s) < line_s  # the one line
+
