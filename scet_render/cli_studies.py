@@ -1,5 +1,5 @@
-"""``scet design-lights``, ``scet study events`` and ``scet study aspheric``: the subcommands of the lighting designer
-and of the event study (wired into :mod:`scet_render.cli` by :func:`add_parsers`). Heavy
+"""``scet design-lights``, ``scet study events`` and ``scet study aspheric``: the subcommands
+of the lighting designer and of the studies (wired into :mod:`scet_render.cli` by :func:`add_parsers`). Heavy
 imports happen inside the commands; progress bars live here, not in the library."""
 
 from __future__ import annotations
@@ -191,9 +191,10 @@ def add_parsers(sub) -> None:
                                             "and simulated, lids on and off: reports/aspheric.md")
     a.add_argument("scene", nargs="?", help=scene_help)
     a.add_argument("--q", default="0,-0.1,-0.25,-0.45",
-                   help="conic constants, comma separated, -1 < Q <= 1 (default 0,-0.1,-0.25,-0.45)")
+                   help="conic constants, comma separated, -1 < Q <= 1 (default 0,-0.1,-0.25,-0.45; "
+                        "a list that starts with a minus sign needs --q=...)")
     a.add_argument("--quick", action="store_true",
-                   help="reduced size: 320x240, 4 spp, conductor cornea, 30 frames")
+                   help="reduced size: 320x240, 4 spp, conductor cornea, 60 frames")
     a.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
     a.add_argument("--out", type=Path, default=Path("out/aspheric"), help="work folder for renders")
     a.add_argument("--report-dir", type=Path, default=Path("reports"))

@@ -23,7 +23,8 @@ CALIB_FIXATION_S = 0.1
 
 
 def render_calibration(setup: Setup, out_dir, *, spp: int, cornea: str, seed: int = 0,
-                       grid=(5, 5), progress=None, eyelid_openness: float | None = 1.0) -> Path:
+                       grid=(5, 5), progress=None,
+                       eyelid_openness: float | None = 1.0) -> Path:
     """Render single-pulse calibration frames of the eye fixating the calib grid.
 
     Writes ``frames/NNNNNN.png`` (frames in the middle of each fixation), ``labels.jsonl``

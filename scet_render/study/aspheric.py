@@ -15,7 +15,7 @@ runs the simulator alone at full size, calibration included, noise-free: the mod
 nothing else in it.
 
 Quick mode renders like ``scet validate --quick`` (320 x 240, 4 spp, conductor cornea) with
-30 test frames at the scene's 16 pulses per frame; full mode 640 x 480, 16 spp, dielectric,
+60 test frames at the scene's 16 pulses per frame; full mode 640 x 480, 16 spp, dielectric,
 90 frames.
 """
 
@@ -45,7 +45,10 @@ DEFAULT_ASPHERICITIES = (0.0, -0.1, -0.25, -0.45)
 #: for every gaze at the screen; 1.0) and no lids at all (None).
 LID_CONDITIONS = (1.0, None)
 
-QUICK = ValidationConfig(scale=2, spp=4, cornea="conductor", frames=30, pulses_per_frame=(16,))
+#: Quick: ``scet validate --quick``'s render settings, at the scene's own 16 pulses per frame
+#: only, and 60 frames: 1 s of fixations at 0.25 s each, four grid cells (30 frames held two
+#: neighbouring cells in the quick validation's sequence: one gaze region).
+QUICK = ValidationConfig(scale=2, spp=4, cornea="conductor", frames=60, pulses_per_frame=(16,))
 FULL = ValidationConfig(scale=1, spp=16, cornea="dielectric", frames=90, pulses_per_frame=(16,))
 
 
@@ -197,6 +200,8 @@ class AsphericCondition:
         lights (the model's own part of the residual).
     rejected : dict
         method -> samples refused for a residual over the tracker's limit.
+    gaze_targets : int
+        Distinct fixation targets of the test sequence.
     all_glints_deg : dict
         method -> (k,) errors of the same calibration on noise-free conic glints of every
         visible light (the 24 x 15 grid): the model error without the band's subset of glints.
@@ -219,6 +224,7 @@ class AsphericCondition:
     reasons: dict
     timings_s: dict
     all_glints_deg: dict
+    gaze_targets: int
 
 
 def condition_from_run(run, q: float, lids: bool) -> AsphericCondition:
@@ -274,7 +280,8 @@ def condition_from_run(run, q: float, lids: bool) -> AsphericCondition:
     return AsphericCondition(
         float(q), bool(lids), stats, errors, cal.cornea_radius_m, float(cal.quality["rms_px"]),
         float(np.linalg.norm(cal.eye_center_m - sset.eye.rotation_center_m)),
-        run.noise_by_ppf[ppf], fit, model, rejected, reasons, dict(run.timings), every)
+        run.noise_by_ppf[ppf], fit, model, rejected, reasons, dict(run.timings), every,
+        len({tuple(np.round(lb.target_m, 6)) for lb in by_key.values()}))
 
 
 def run_aspheric_study(scene=None, *, quick: bool, out_dir, report_dir,
@@ -311,7 +318,8 @@ def run_aspheric_study(scene=None, *, quick: bool, out_dir, report_dir,
 
     cfg = config or (QUICK if quick else FULL)
     if len(cfg.pulses_per_frame) != 1:
-        raise ValueError("the aspheric study runs one strobe setting (pulses_per_frame of one value)")
+        raise ValueError("the aspheric study runs one strobe setting (pulses_per_frame of one "
+                         "value)")
     qs = tuple(float(q) for q in asphericities)
     if not qs:
         raise ValueError("asphericities: at least one conic constant is needed")

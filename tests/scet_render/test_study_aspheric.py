@@ -93,5 +93,6 @@ def test_tiny_rendered_study(tmp_path):
     # dwarfs the 0.1 deg of detection noise.
     assert np.isfinite(geo0[2]) and np.isfinite(geo1[2]) and geo1[2] > geo0[2] + 0.5
     # The rendered sphere fit's residual grows with the model error (0.23 -> 0.90 px median).
-    assert np.median(by_q[-0.25].fit_rms_px["geometric"]) > np.median(by_q[0.0].fit_rms_px["geometric"])
+    fit = {q: np.median(c.fit_rms_px["geometric"]) for q, c in by_q.items()}
+    assert fit[-0.25] > fit[0.0]
     assert set(features) == {0.0, -0.25}
