@@ -66,6 +66,7 @@ __all__ = ["FolderTiming", "timing_document", "read_timing", "frame_path", "read
            "read_targets", "iter_folder", "CalibrationGlints", "SINGLE_PULSE_MIN_WEIGHT",
            "MAKE_CALIBRATION_FRAMES", "check_single_pulse", "calibration_glints",
            "CALIBRATION_MAPPINGS", "fit_supported_mappings", "calibrate_from_folder",
+           "calibrate_from_glints",
            "save_calibration", "load_calibration", "SAMPLE_COLUMNS", "TrackSummary",
            "track_folder", "samples_csv", "write_samples_csv", "read_samples_csv",
            "BAD_TIMESTAMP"]
@@ -198,19 +199,28 @@ def calibrate_from_folder(folder, setup: Setup) -> Calibration:
     (minimum-norm where the orbit makes it rank deficient), m the number of frames used.
     """
     cal_setup, cg = calibration_glints(folder, setup)
-    mask = np.isfinite(cg.glints_px).all(axis=-1)
-    lighting, orbit = calibrate_joint(cal_setup.camera, cal_setup.lights_world_m, cg.glints_px,
-                                      cg.targets_m, mask,
-                                      center0_m=cal_setup.eye.cornea_center(0.0, 0.0))
+    return calibrate_from_glints(cal_setup, cg.glints_px, cg.targets_m,
+                                 frames_total=len(read_targets(folder)))
+
+
+def calibrate_from_glints(setup: Setup, glints_px, targets_m, *,
+                          frames_total: int | None = None) -> Calibration:
+    """:func:`calibrate_from_folder` on identified glints: (m, n, 2) px (NaN: not seen) of
+    ``setup``'s lights with the eye fixating (m, 3) ``targets_m`` (the feature-level
+    simulator's glints, or a folder's). ``frames_total``: the frames there were (default m)."""
+    glints_px = np.asarray(glints_px, dtype=np.float64)
+    used = glints_px.shape[0]
+    total = used if frames_total is None else int(frames_total)
+    mask = np.isfinite(glints_px).all(axis=-1)
+    lighting, orbit = calibrate_joint(setup.camera, setup.lights_world_m, glints_px,
+                                      targets_m, mask, center0_m=setup.eye.cornea_center(0.0, 0.0))
     cal = Calibration.from_fits(lighting, orbit)
-    total = len(read_targets(folder))
     cal = cal.with_quality(
-        rms_px=float(lighting.rms_px), frames_used=len(cg.frames), frames_total=total,
-        warnings=calibration_warnings(lighting, orbit, frames_used=len(cg.frames),
-                                      frames_total=total))
-    centers = fit_cornea_centers(cal_setup, cal, cg.glints_px, mask)
+        rms_px=float(lighting.rms_px), frames_used=used, frames_total=total,
+        warnings=calibration_warnings(lighting, orbit, frames_used=used, frames_total=total))
+    centers = fit_cornea_centers(setup, cal, glints_px, mask)
     ok = centers.ok
-    maps, skipped = fit_supported_mappings(centers.center_m[ok], cg.targets_m[ok])
+    maps, skipped = fit_supported_mappings(centers.center_m[ok], np.asarray(targets_m)[ok])
     if skipped:
         cal = cal.with_quality(mappings_skipped=skipped)
     return cal.with_mappings(**maps)

@@ -1,5 +1,5 @@
-"""``scet design-lights`` and ``scet study events``: the subcommands of the lighting designer
-and of the event study (wired into :mod:`scet_render.cli` by :func:`add_parsers`). Heavy
+"""``scet design-lights``, ``scet study events`` and ``scet study aspheric``: the subcommands
+of the lighting designer and of the studies (wired into :mod:`scet_render.cli` by :func:`add_parsers`). Heavy
 imports happen inside the commands; progress bars live here, not in the library."""
 
 from __future__ import annotations
@@ -128,6 +128,23 @@ def cmd_study_events(args) -> int:
     return 0
 
 
+def cmd_study_aspheric(args) -> int:
+    from scet_render.study.aspheric import parse_asphericities, run_aspheric_study
+    from scet_render.study.aspheric_report import accuracy_table
+
+    qs = parse_asphericities(args.q)
+    bars = StageBars()
+    try:
+        conditions, _, path = run_aspheric_study(args.scene, quick=args.quick, out_dir=args.out,
+                                                 report_dir=args.report_dir, asphericities=qs,
+                                                 seed=args.seed, progress=bars.update)
+    finally:
+        bars.close()
+    print(accuracy_table(conditions))
+    print(f"report written to {path}")
+    return 0
+
+
 def add_parsers(sub) -> None:
     """Add ``design-lights`` and ``study`` to the ``scet`` subcommands."""
     scene_help = "scene file or built-in scene name (default: paper_sim)"
@@ -170,6 +187,19 @@ def add_parsers(sub) -> None:
     e.add_argument("--out", type=Path, default=Path("out/events"), help="work folder for renders")
     e.add_argument("--report-dir", type=Path, default=Path("reports"))
     e.set_defaults(func=cmd_study_events)
+    a = studies.add_parser("aspheric", help="the spherical tracker on conic corneas (Q), rendered "
+                                            "and simulated, lids on and off: reports/aspheric.md")
+    a.add_argument("scene", nargs="?", help=scene_help)
+    a.add_argument("--q", default="0,-0.1,-0.25,-0.45",
+                   help="conic constants, comma separated, -1 < Q <= 1 (default 0,-0.1,-0.25,-0.45; "
+                        "a list that starts with a minus sign needs --q=...)")
+    a.add_argument("--quick", action="store_true",
+                   help="reduced size: 320x240, 4 spp, conductor cornea, 60 frames")
+    a.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
+    a.add_argument("--out", type=Path, default=Path("out/aspheric"), help="work folder for renders")
+    a.add_argument("--report-dir", type=Path, default=Path("reports"))
+    a.set_defaults(func=cmd_study_aspheric)
 
 
-__all__ = ["add_parsers", "rendered_band_shares", "cmd_design_lights", "cmd_study_events"]
+__all__ = ["add_parsers", "rendered_band_shares", "cmd_design_lights", "cmd_study_events",
+           "cmd_study_aspheric"]

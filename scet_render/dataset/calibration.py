@@ -23,12 +23,15 @@ CALIB_FIXATION_S = 0.1
 
 
 def render_calibration(setup: Setup, out_dir, *, spp: int, cornea: str, seed: int = 0,
-                       grid=(5, 5), progress=None) -> Path:
+                       grid=(5, 5), progress=None,
+                       eyelid_openness: float | None = 1.0) -> Path:
     """Render single-pulse calibration frames of the eye fixating the calib grid.
 
     Writes ``frames/NNNNNN.png`` (frames in the middle of each fixation), ``labels.jsonl``
     (:func:`scet_render.dataset.frame_labels`) and ``timing.json`` (with the calibration
-    exposure and strobe), each atomically. Returns the folder.
+    exposure and strobe), each atomically. Returns the folder. ``eyelid_openness`` as
+    :func:`scet_render.dataset.render_dataset` (the frames carry no manifest: a folder is
+    reused as it is, so give each eyelid setting its own).
     """
     from ..render import BandedRenderer, SensorModel
 
@@ -43,7 +46,8 @@ def render_calibration(setup: Setup, out_dir, *, spp: int, cornea: str, seed: in
     mid = 0.5 * (starts[fix] + ends[fix])
     instant = strobe_instant(cal.strobe.phase_s, cal.strobe.pulse_s)  # pulse centre relative to t0_f
     frames = [int(round((t - instant) / dt)) for t in mid]
-    renderer = BandedRenderer(cal, spp=spp, cornea=cornea, seed=seed)
+    renderer = BandedRenderer(cal, spp=spp, cornea=cornea, seed=seed,
+                              eyelid_openness=eyelid_openness)
     sensor = SensorModel.from_sensor(cal.sensor)
     labels = []
     for i, f in enumerate(frames):

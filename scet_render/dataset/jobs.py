@@ -29,7 +29,7 @@ from estimator.formats import atomic_write, frame_name, remove_partials
 from estimator.inputs import read_frame
 from estimator.setup import Setup
 
-from ..render import SensorModel
+from ..render import SceneOptions, SensorModel
 from .format import (
     FRAMES_DIR,
     LABELS_NAME,
@@ -77,6 +77,9 @@ class DatasetPlan:
     variant: str | None
     sensor: SensorModel
     committed: bool = field(default=False)
+    #: The renderer's eyelids (:class:`scet_render.render.SceneOptions`; None: none). Recorded
+    #: in the manifest with the renderer's settings (``render.renderer.scene_options``).
+    eyelid_openness: float | None = 1.0
 
     @property
     def frames_dir(self) -> Path:
@@ -112,7 +115,8 @@ def frame_intact(frames_dir: Path, frame: int, scene_sha256: str, shape) -> bool
 def prepare_dataset(setup: Setup, out_dir, *, frames: int, spp: int = 16,
                     trajectory: str = "fixations", seed: int = 0, variant: str | None = None,
                     cornea: str = "dielectric", sensor: SensorModel | None = None,
-                    scene_text: str | None = None) -> DatasetPlan:
+                    scene_text: str | None = None,
+                    eyelid_openness: float | None = 1.0) -> DatasetPlan:
     """Step 1 (module docstring); the arguments as :func:`~scet_render.dataset.render_dataset`.
 
     Raises
@@ -128,6 +132,7 @@ def prepare_dataset(setup: Setup, out_dir, *, frames: int, spp: int = 16,
         raise ValueError(f"cornea must be a string, got {cornea!r}")
     if variant is not None and not isinstance(variant, str):
         raise ValueError(f"variant must be a string or None, got {variant!r}")
+    SceneOptions(eyelid_openness=eyelid_openness)  # checks it (ValueError) before any work
     sensor = SensorModel.from_sensor(setup.sensor) if sensor is None else sensor
     if not isinstance(sensor, SensorModel):
         raise ValueError(f"sensor must be a SensorModel, got {type(sensor).__name__}")
@@ -145,7 +150,7 @@ def prepare_dataset(setup: Setup, out_dir, *, frames: int, spp: int = 16,
     done = [f for f in range(frames) if frame_intact(out / FRAMES_DIR, f, sha, shape)]
     todo = sorted(set(range(frames)) - set(done))
     return DatasetPlan(setup, out, manifest, existing, todo, done, frames, spp, seed, kind,
-                       cornea, variant, sensor)
+                       cornea, variant, sensor, eyelid_openness=eyelid_openness)
 
 
 def commit_manifest(plan: DatasetPlan, variant: str, renderer_settings: dict,

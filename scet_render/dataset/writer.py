@@ -150,6 +150,7 @@ def render_dataset(
     sensor: SensorModel | None = None,
     scene_text: str | None = None,
     progress: Callable[[int, int], None] | None = None,
+    eyelid_openness: float | None = 1.0,
 ) -> RenderSummary:
     """Render a banded-frame dataset (or finish an interrupted one) into ``out_dir``.
 
@@ -180,6 +181,9 @@ def render_dataset(
     progress : callable, optional
         Called as ``progress(done, total)`` once at the start and after every frame (the CLI
         shows a progress bar with it; this function never prints).
+    eyelid_openness : float or None
+        The renderer's static eyelids: 1 clears the cornea for every gaze at the screen, 0 is
+        closed, None renders no lids (:class:`scet_render.render.BandedRenderer`).
 
     Returns
     -------
@@ -205,7 +209,7 @@ def render_dataset(
     """
     plan = prepare_dataset(setup, out_dir, frames=frames, spp=spp, trajectory=trajectory,
                            seed=seed, variant=variant, cornea=cornea, sensor=sensor,
-                           scene_text=scene_text)
+                           scene_text=scene_text, eyelid_openness=eyelid_openness)
     traj = dataset_trajectory(setup, plan.trajectory, plan.frames, plan.seed)
     renderer = None
     if plan.todo or plan.existing is None:
@@ -251,7 +255,7 @@ def open_renderer(plan: DatasetPlan, *, threads: int | None = None,
                 f"{plan.out / MANIFEST_NAME}: the frames are rendered with LLVM kernels {want} "
                 f"lanes wide; this machine cannot render the same bytes ({exc})") from None
     renderer = _make_renderer(plan.setup, spp=plan.spp, variant=mi.variant(), cornea=plan.cornea,
-                              seed=plan.seed)
+                              seed=plan.seed, eyelid_openness=plan.eyelid_openness)
     settings = _renderer_settings(renderer)
     if host is not None:
         settings["llvm"] = {"vector_width": host["vector_width"]}
@@ -315,13 +319,15 @@ def _render_frame(renderer, setup: Setup, sensor: SensorModel, traj: Trajectory,
     return frame_labels(setup, traj, frame, bands)
 
 
-def _make_renderer(setup: Setup, *, spp: int, variant, cornea: str, seed: int):
+def _make_renderer(setup: Setup, *, spp: int, variant, cornea: str, seed: int,
+                   eyelid_openness: float | None = 1.0):
     from ..render import BandedRenderer
 
     # The renderer derives every slice's sampler seed from (its seed, frame index, slice), so
     # frame f renders the same whatever was rendered before it: resumed runs stay identical.
     render_seed = int(np.random.SeedSequence([seed, _STREAM_RENDER]).generate_state(1)[0])
-    return BandedRenderer(setup, variant=variant, spp=spp, cornea=cornea, seed=render_seed)
+    return BandedRenderer(setup, variant=variant, spp=spp, cornea=cornea, seed=render_seed,
+                          eyelid_openness=eyelid_openness)
 
 
 def _renderer_settings(renderer) -> dict:

@@ -13,9 +13,10 @@ from .config import (
     ValidationConfig,
     ValidationResult,
     ValidationRow,
+    ValidationRun,
 )
 from .report import prior_table_markdown, table_markdown
-from .run import geometric_from, run_validation
+from .run import geometric_from, run_validation, validate_setup
 from .score import (
     POSITIONS,
     Score,
@@ -31,7 +32,8 @@ from .score import (
 
 __all__ = [
     "IDENTITY_RADIUS_PX", "ValidationConfig", "QUICK", "FULL", "ValidationRow",
-    "ValidationResult", "SIM_REPEATS", "table_markdown", "prior_table_markdown",
+    "ValidationResult", "ValidationRun", "validate_setup", "SIM_REPEATS", "table_markdown",
+    "prior_table_markdown",
     "geometric_from", "run_validation", "POSITIONS", "true_gaze_points", "band_position",
     "error_statistics",
     "ScoreRow", "Score", "score_samples", "score_table", "reasons_table", "write_score_report"

@@ -130,6 +130,46 @@ class ValidationResult:
                                and (pulses_per_frame is None or p == pulses_per_frame)])
 
 
+@dataclass(frozen=True, slots=True)
+class ValidationRun:
+    """What :func:`scet_render.validate.validate_setup` measured on one setup, before any
+    report: the inputs of ``validation.md`` and of the studies built on it.
+
+    Attributes
+    ----------
+    settings : dict
+        pulses per frame -> (setup of that strobe setting, test dataset folder).
+    rows, errors_deg, reasons, assisted, assisted_identities, feature_noise_by_ppf,
+    feature_noise_px, calibration, timings_s
+        As :class:`ValidationResult`'s (``errors`` keyed (source, ppf, method); the simulated
+        errors are ``SIM_REPEATS`` realisations of the samples, realisation-major).
+    tracked : dict
+        (pulses_per_frame, method) -> list of :class:`estimator.tracker.GazeSample`.
+    labels : dict
+        pulses per frame -> {(frame, strobe): label} of its test dataset.
+    correct, total : int
+        Right and all identified glints.
+    mapping : str
+        The polynomial mapping used (``eq1_<m>``).
+    """
+
+    settings: dict
+    rows: list
+    errors: dict
+    reasons: dict
+    tracked: dict
+    assisted: dict
+    assisted_ids: tuple
+    labels: dict
+    noise_by_ppf: dict
+    noise_px: float
+    correct: int
+    total: int
+    calibration: Calibration
+    mapping: str
+    timings: dict
+
+
 #: Noise realisations of the feature-level simulation per sample: one realisation of ~20
 #: samples (the fast test) leaves the median of polynomial gaze, whose cornea-centre fit
 #: amplifies feature noise, uncertain to ~0.3 deg; ten bring it to ~0.1 deg.

@@ -57,6 +57,7 @@ from .config import (
     ValidationConfig,
     ValidationResult,
     ValidationRow,
+    ValidationRun,
 )
 from .report import _write_report
 from .score import error_statistics, true_gaze_points
@@ -185,14 +186,49 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
     -------
     ValidationResult
     """
-    from ..dataset import iter_labels, render_dataset
-
     cfg = config or (QUICK if quick else FULL)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     report_dir = Path(report_dir) if report_dir is not None else out
-    base = load_scene(scene)
-    setup = scaled_setup(base, cfg.scale)
+    setup = scaled_setup(load_scene(scene), cfg.scale)
+    r = validate_setup(setup, cfg, out, seed=seed, progress=progress)
+    report = _write_report(report_dir, r.settings, cfg, r.rows, r.noise_by_ppf, r.correct,
+                           r.total, r.reasons, r.timings, r.errors, r.tracked, r.assisted,
+                           r.assisted_ids)
+    return ValidationResult(r.rows, r.noise_px, r.correct / r.total if r.total else math.nan,
+                            r.total, r.calibration, r.errors, r.reasons, r.timings, report, cfg,
+                            r.noise_by_ppf, r.assisted, r.assisted_ids)
+
+
+def validate_setup(setup: Setup, cfg: ValidationConfig, out_dir, *, seed: int = 0,
+                   progress: Callable[[str, int, int], None] | None = None,
+                   eyelid_openness: float | None = 1.0,
+                   scene_text: str | None = None) -> ValidationRun:
+    """Steps 1-3 of the module docstring on a setup already at the render size (no report):
+    what :func:`run_validation` runs on its scene, and ``scet study aspheric`` on derived eyes.
+
+    Parameters
+    ----------
+    setup : Setup
+        At the size to render (:func:`estimator.banding.scaled_setup`).
+    cfg : ValidationConfig
+    out_dir : Path
+        Work folder, as :func:`run_validation`'s.
+    seed : int
+    progress : callable, optional
+    eyelid_openness : float or None
+        The renderer's static eyelids (None: none; :func:`scet_render.dataset.render_dataset`).
+    scene_text : str, optional
+        The scene TOML the datasets' manifests record; needed when ``setup`` is derived in
+        memory (its text is not that of ``setup.source``, which is read otherwise).
+
+    Returns
+    -------
+    ValidationRun
+    """
+    from ..dataset import iter_labels, render_dataset
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
     timings = {}
 
     def stage(name):
@@ -200,13 +236,15 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
 
     t = time.perf_counter()
     cal_dir = render_calibration(setup, out / "calibration", spp=cfg.spp, cornea=cfg.cornea,
-                                 seed=seed, grid=cfg.calib_grid, progress=stage("calibration"))
+                                 seed=seed, grid=cfg.calib_grid, progress=stage("calibration"),
+                                 eyelid_openness=eyelid_openness)
     settings = {}  # pulses per frame -> (setup, test folder)
     for ppf in cfg.pulses_per_frame:
         sset = strobe_setup(setup, ppf)
         test_dir = out / f"test_p{ppf}"
         render_dataset(sset, test_dir, frames=cfg.frames, spp=cfg.spp, trajectory="fixations",
-                       seed=seed, cornea=cfg.cornea, progress=stage(f"test {ppf} pulses/frame"))
+                       seed=seed, cornea=cfg.cornea, progress=stage(f"test {ppf} pulses/frame"),
+                       scene_text=scene_text, eyelid_openness=eyelid_openness)
         settings[ppf] = (sset, test_dir)
     timings["render"] = time.perf_counter() - t
 
@@ -217,6 +255,7 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
     mapping = sorted(k for k in calibration.mappings if k.startswith("eq1"))[-1]
 
     rows, errors, reasons, noise_by_ppf, tracked, assisted = [], {}, {}, {}, {}, {}
+    labels_by_ppf = {}
     correct = total = 0
     assisted_ids = (0, 0)
     resid_all = []
@@ -225,6 +264,7 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
     for ppf, (sset, test_dir) in settings.items():
         labels = list(iter_labels(test_dir))
         by_key = {(lb.frame, lb.strobe): lb for lb in labels}
+        labels_by_ppf[ppf] = by_key
         resid_p = []
         for method in ("polynomial", "geometric"):
             t = time.perf_counter()
@@ -276,8 +316,6 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
     resid = np.concatenate(resid_all)
     noise_px = float(np.sqrt(np.mean(resid ** 2))) if resid.size else 0.0
     timings["total"] = sum(timings.values())
-    report = _write_report(report_dir, settings, cfg, rows, noise_by_ppf, correct, total,
-                           reasons, timings, errors, tracked, assisted, assisted_ids)
-    return ValidationResult(rows, noise_px, correct / total if total else math.nan, total,
-                            calibration, errors, reasons, timings, report, cfg, noise_by_ppf,
-                            assisted, assisted_ids)
+    return ValidationRun(settings, rows, errors, reasons, tracked, assisted, assisted_ids,
+                         labels_by_ppf, noise_by_ppf, noise_px, correct, total, calibration,
+                         mapping, timings)
