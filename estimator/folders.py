@@ -177,8 +177,12 @@ def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
         det = det.select(~det.has(NO_BAND))
         prior = np.array(cal_setup.eye.angles_toward(targets[f][None])).reshape(2)
         match = matcher.match(det.glints_px, prior_angles_rad=prior)
-        if not match.ok or match.matched.sum() < MIN_GLINTS:
+        if not match.ok:
             log.warning("calibration frame %d left out: match %s", f, match.reason)
+            continue
+        if match.matched.sum() < MIN_GLINTS:
+            log.warning("calibration frame %d left out: %d glints identified, fewer than %d",
+                        f, int(match.matched.sum()), MIN_GLINTS)
             continue
         g = np.full((n, 2), np.nan)
         g[match.light_index[match.matched]] = det.glints_px[match.matched]

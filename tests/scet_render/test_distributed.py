@@ -46,6 +46,17 @@ def test_two_workers_give_the_serial_bytes(dataset, small, tmp_path):
     assert tree_digest(out) == tree_digest(dataset)   # manifest and labels included
 
 
+def test_workers_render_without_eyelids_as_the_serial_run(small, tmp_path):
+    """eyelid_openness reaches the actors (the plan carries it): a lidless frame, serial and
+    on a worker, byte for byte; and it differs from the lidded one (the option does act)."""
+    kw = dict(frames=1, spp=SPP, trajectory="saccades", seed=SEED)
+    render_dataset(small, tmp_path / "serial", eyelid_openness=None, **kw)
+    render_dataset_ray(small, tmp_path / "ray", workers=1, eyelid_openness=None, **kw)
+    assert tree_digest(tmp_path / "ray") == tree_digest(tmp_path / "serial")
+    render_dataset(small, tmp_path / "lids", **kw)
+    assert tree_digest(tmp_path / "lids") != tree_digest(tmp_path / "serial")
+
+
 def test_a_killed_worker_is_restarted_and_the_dataset_is_the_same(dataset, small, tmp_path):
     out = tmp_path / "killed_worker"
     killed = []
