@@ -42,7 +42,6 @@ import numpy as np
 import estimator.matching.kernels as kernels
 
 from ..cornea import SmallFit, fit_small
-from ..geometry import camera_arrays, glints_one_pose
 from .matcher import GlintMatcher
 from .model import _Hypothesis
 from .params import GlintMatch
@@ -89,24 +88,15 @@ class BandFollower:
         if matcher.params.model != "orbit":
             raise ValueError("the cheap path needs the matcher's 'orbit' model")
         self.matcher, self.params = matcher, params
-        #: The camera as the compiled kernels take it (:func:`estimator.geometry.camera_arrays`).
-        self.arrays = camera_arrays(matcher.setup.camera)
-        self._lights = np.ascontiguousarray(matcher.lights_world_m, dtype=np.float64)
+        #: The camera as the compiled kernels take it (the matcher's).
+        self.arrays = matcher.arrays
         # Each light's neighbour -2, -1, +1, +2 places along its own arc (-1 off the arc).
-        every = np.arange(self._lights.shape[0])
+        every = np.arange(matcher.lights_world_m.shape[0])
         self._shifted = np.stack([matcher._shift(every, s) for s in (-2, -1, 1, 2)], axis=1)
 
     def predict(self, angles_rad):
         """Glints (n, 2) and visibility (n,) of every light at one rotation (2,)."""
-        m = self.matcher
-        yaw, pitch = float(angles_rad[0]), float(angles_rad[1])
-        cp = math.cos(pitch)
-        # gaze_direction and Eye.cornea_center of one rotation, without numpy's per-call cost.
-        axis = np.array([cp * math.sin(yaw), math.sin(pitch), -cp * math.cos(yaw)])
-        center = m.eye.rotation_center_m + m.eye.cornea_offset_m * axis
-        return glints_one_pose(m.setup.camera, center, m.eye.cornea_radius_m, self._lights,
-                               cornea_axis=axis, cap_cos_min=m.eye.cap_cos_min,
-                               arrays=self.arrays)
+        return self.matcher._predict_one(float(angles_rad[0]), float(angles_rad[1]))
 
     def follow(self, glints_px, rows, prior_angles_rad, *, prior_term: bool = True
                ) -> Followed | None:

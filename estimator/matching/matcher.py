@@ -104,8 +104,10 @@ class GlintMatcher(HypothesisSearch):
         self.eye = calibrated_eye(setup.eye, calibration)
         eye = self.eye
         nominal = np.asarray(setup.lights_world_m, dtype=np.float64)
-        self.lights_world_m = (nominal if calibration is None
-                               else calibration.lights_world_m(nominal))
+        self.lights_world_m = np.ascontiguousarray(nominal if calibration is None
+                                                   else calibration.lights_world_m(nominal))
+        #: The camera as the compiled kernels take it (:func:`estimator.geometry.camera_arrays`).
+        self.arrays = camera_arrays(setup.camera)
         self.group = np.asarray(setup.lights.group_index)
         self.problem = problem if problem is not None else FitProblem(
             setup.camera, self.lights_world_m, eye.cornea_radius_m, eye.rotation_center_m,
@@ -153,28 +155,35 @@ class GlintMatcher(HypothesisSearch):
         return project_glints(self.setup.camera, x, eye.cornea_radius_m, self.lights_world_m,
                               cornea_axis=axis, cap_cos_min=eye.cap_cos_min)
 
+    def _predict_one(self, yaw: float, pitch: float):
+        """Glints (n, 2) and visibility (n,) of every light at one rotation on the orbit, by
+        the compiled projection (:func:`estimator.geometry.glints_one_pose`: the same glints
+        to ~1e-12 px and the same visibility as :meth:`predict`); gaze_direction and
+        Eye.cornea_center of one rotation without numpy's per-call cost."""
+        eye = self.eye
+        cp = math.cos(pitch)
+        axis = np.array([cp * math.sin(yaw), math.sin(pitch), -cp * math.cos(yaw)])
+        center = eye.rotation_center_m + eye.cornea_offset_m * axis
+        return glints_one_pose(self.setup.camera, center, eye.cornea_radius_m,
+                               self.lights_world_m, cornea_axis=axis,
+                               cap_cos_min=eye.cap_cos_min, arrays=self.arrays)
+
     def _predict_each(self, x):
-        """:meth:`_predict_x` one pose at a time by the compiled projection
-        (:func:`estimator.geometry.glints_one_pose`: the same glints to ~1e-12 px and the
-        same visibility), where numpy's ~0.4 ms per call on a handful of poses is overhead."""
-        if getattr(self, "_arrays", None) is None:
-            self._arrays = camera_arrays(self.setup.camera)
+        """:meth:`_predict_x` one pose at a time by the compiled projection, where numpy's
+        ~0.4 ms per call on a handful of poses is overhead."""
         eye, orbit = self.eye, self.params.model == "orbit"
         n = self.lights_world_m.shape[0]
         g, vis = np.empty((x.shape[0], n, 2)), np.empty((x.shape[0], n), dtype=bool)
         for h in range(x.shape[0]):
             if orbit:
-                yaw, pitch = float(x[h, 0]), float(x[h, 1])
-                cp = math.cos(pitch)
-                axis = np.array([cp * math.sin(yaw), math.sin(pitch), -cp * math.cos(yaw)])
-                center = eye.rotation_center_m + eye.cornea_offset_m * axis
-            else:
-                center = np.asarray(x[h], dtype=np.float64)
-                axis = center - eye.rotation_center_m
-                axis = axis / math.sqrt(float(axis @ axis))
+                g[h], vis[h] = self._predict_one(float(x[h, 0]), float(x[h, 1]))
+                continue
+            center = np.asarray(x[h], dtype=np.float64)
+            axis = center - eye.rotation_center_m
+            axis = axis / math.sqrt(float(axis @ axis))
             g[h], vis[h] = glints_one_pose(self.setup.camera, center, eye.cornea_radius_m,
                                            self.lights_world_m, cornea_axis=axis,
-                                           cap_cos_min=eye.cap_cos_min, arrays=self._arrays)
+                                           cap_cos_min=eye.cap_cos_min, arrays=self.arrays)
         return g, vis
 
     def _x_from_angles(self, angles):

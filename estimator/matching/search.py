@@ -16,7 +16,6 @@ from scipy.optimize import linear_sum_assignment
 import estimator.matching.kernels as kernels
 
 from ..cornea import fit_cornea, fit_replica, fit_small
-from ..geometry import camera_arrays
 from .model import _Hypothesis
 
 
@@ -163,8 +162,6 @@ class HypothesisSearch:
         """:meth:`_fit` without a prior, one hypothesis at a time by the batched fit's own
         rules compiled (:func:`estimator.cornea.fit_replica`: the same convergence, and so
         the same failures, at a few µs per iteration instead of ~390)."""
-        if getattr(self, "_arrays", None) is None:
-            self._arrays = camera_arrays(self.problem.camera)
         p = 2 if self.params.model == "orbit" else 3
         X_new = np.array(X, dtype=np.float64)
         ok = np.zeros(len(assigns), dtype=bool)
@@ -173,7 +170,7 @@ class HypothesisSearch:
             if 2 * m.sum() < p:
                 continue
             x, ok[h], _ = fit_replica(self.problem, g[m], self.lights_world_m[assign[m]], X_new[h],
-                                      model=self.params.model, arrays=self._arrays)
+                                      model=self.params.model, arrays=self.arrays)
             if ok[h]:
                 X_new[h] = x
         return X_new, ok
@@ -185,8 +182,6 @@ class HypothesisSearch:
         the batched fit stays: on poor hypotheses (few glints far from the truth) the two
         solvers' stopping rules part, and installs with and without Numba would name
         different failures; the prior's term makes every refit well posed."""
-        if getattr(self, "_arrays", None) is None:
-            self._arrays = camera_arrays(self.problem.camera)
         mean, info = fit_prior
         X_new = np.array(X, dtype=np.float64)
         ok = np.zeros(len(assigns), dtype=bool)
@@ -195,7 +190,7 @@ class HypothesisSearch:
             if not m.any():
                 continue
             fit = fit_small(self.problem, g[m], self.lights_world_m[assign[m]], X_new[h],
-                            model="orbit", arrays=self._arrays, prior_mean=mean,
+                            model="orbit", arrays=self.arrays, prior_mean=mean,
                             prior_information=info)
             if fit.ok:
                 X_new[h], ok[h] = fit.x, True

@@ -41,6 +41,11 @@ def results(world):
     return get
 
 
+def row_of(result, prefix: str):
+    """The verdict row whose quantity starts with ``prefix``."""
+    return next(x for x in result.rows if x.quantity.startswith(prefix))
+
+
 def flagged(result):
     return {r.quantity.split(",")[0].split(" (")[0]: r for r in result.flagged}
 
@@ -55,7 +60,7 @@ def test_another_S_is_found_and_measured(results):
     r = results("S")
     # the capture is made with S = 262 (the scene says 393): within half a line
     assert abs(r.findings["total_lines"] - 262) < 0.5
-    row = next(x for x in r.rows if x.quantity.startswith("S,"))
+    row = row_of(r, "S,")
     assert not row.passed and row.cause == "timing"
 
 
@@ -64,7 +69,7 @@ def test_a_strobe_phase_is_found_and_measured(results, world):
     line_s = world[2].sensor.frame_period_s / world[2].sensor.total_lines
     # 200 us of phase the scene does not have: within a quarter line (10.6 us)
     assert abs(r.findings["phase_diff_s"] - 200e-6) < 0.25 * line_s
-    row = next(x for x in r.rows if x.quantity.startswith("strobe phase"))
+    row = row_of(r, "strobe phase")
     assert not row.passed and row.cause == "timing"
 
 
@@ -72,7 +77,7 @@ def test_an_exposure_one_line_short_is_found_and_measured(results):
     r = results("exposure")
     # one line shorter: -1 line, measured to a quarter line (the unperturbed bias is +0.09)
     assert abs(r.findings["exposure_diff_lines"] + 1.0) < 0.25
-    row = next(x for x in r.rows if x.quantity.startswith("exposure"))
+    row = row_of(r, "exposure")
     assert not row.passed and row.cause == "timing"
 
 
@@ -80,10 +85,10 @@ def test_a_20_percent_gain_error_is_found_and_measured(results):
     r = results("gain")
     # the response over the scene's sensor model: 1.2, to 2 % (unperturbed: 0.997-1.002)
     assert abs(r.findings["response_ratio"] - 1.2) < 0.02
-    row = next(x for x in r.rows if x.quantity.startswith("response"))
+    row = row_of(r, "response")
     assert not row.passed and row.cause == "sensor"
     # the render made with the estimated gain matches the capture's glint energies again
-    assert next(x for x in r.rows if x.quantity.startswith("glint energy")).passed
+    assert row_of(r, "glint energy").passed
 
 
 def test_lights_off_their_places_are_found_and_measured(results):
@@ -93,7 +98,7 @@ def test_lights_off_their_places_are_found_and_measured(results):
     # grow from ~0.1 px (noise) to over 0.5 px
     assert r.findings["light_offset_rms_px"] > 0.5
     assert r.findings["light_offset_rms_px"] > 4 * nominal.findings["light_offset_rms_px"]
-    row = next(x for x in r.rows if x.quantity.startswith("per-light"))
+    row = row_of(r, "per-light")
     assert not row.passed and row.cause == "geometry"
 
 
@@ -102,7 +107,7 @@ def test_another_corneal_radius_is_found_and_measured(results):
     # the capture's cornea is 7.6 mm (the scene's 7.8): the orbit fit within 0.05 mm (its
     # SE is ~0.01 mm; the offset's scaling with r_c is the model's, so no bias is expected)
     assert abs(r.findings["cornea_radius_mm"] - 7.6) < 0.05
-    row = next(x for x in r.rows if x.quantity.startswith("corneal radius"))
+    row = row_of(r, "corneal radius")
     assert not row.passed and row.cause == "geometry"
 
 
@@ -149,7 +154,7 @@ def test_too_few_frames_for_the_drift_is_a_flagged_row(world, tmp_path):
     d, scene, setup = world
     cap = foreign_capture(tmp_path, scene, "nominal", frames=2)
     r = compare_capture(cap, setup, frames=2, spp=SPP, cornea=CORNEA)
-    row = next(x for x in r.rows if x.quantity.startswith("banded frames"))
+    row = row_of(r, "banded frames")
     assert not row.passed and "nominal strobe clock" in row.note
     assert math.isnan(r.findings["clock_ppm"])
 

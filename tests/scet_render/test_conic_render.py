@@ -22,21 +22,13 @@ from scet_render.render import (
 )
 from scet_render.simulate import ground_truth_glints
 from tests.scet_render.test_render_scene import _first_hits
-from tests.scet_render.test_rolling_shutter import TOL, strobe_centroids
+from tests.scet_render.test_rolling_shutter import TOL, mi, strobe_centroids  # noqa: F401 (mi)
 
 #: The issue's conic (apex 7.8 mm, PyEtSimul's Q = -0.25) and a strongly prolate one.
 Q = -0.25
 #: Ray hits on the ellipsoid instance against the conic (m): Mitsuba intersects in float32 at
 #: ~50 cm from the camera in centimetres (6e-8 relative: 0.03 µm), measured 3 nm; 1 µm slack.
 HIT_M = 1e-6
-
-
-@pytest.fixture(scope="module")
-def mi():
-    pytest.importorskip("mitsuba")
-    from scet_render.render import activate
-
-    return activate()
 
 
 @pytest.fixture(scope="module")
