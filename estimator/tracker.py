@@ -75,6 +75,11 @@ RESIDUAL_TOO_LARGE = "residual_too_large"
 #: A band's own identification puts the eye further from the previous sample than it can turn
 #: in the time between them (:data:`JUMP_AGE_S`, :data:`JUMP_SLACK_DEG`).
 IMPLAUSIBLE_JUMP = "implausible_jump"
+#: No eye rotation within that turn of a sample under :data:`JUMP_AGE_S` old puts
+#: :data:`MIN_GLINTS` glints on the band's rows (the top rows of a frame while the eye looks
+#: down): the band is not searched (a search could match it only at a rotation
+#: :data:`IMPLAUSIBLE_JUMP` rejects) and is left to the prior.
+OUT_OF_REACH = "band_out_of_reach"
 #: Prefix of the reason of a sparse band whose prior-assisted estimate failed too (e.g.
 #: "prior_ambiguous", "prior_residual_too_large"): a prior was there, it did not suffice.
 PRIOR_PREFIX = "prior_"
@@ -172,8 +177,9 @@ class Tracker:
         self.follower = None
         if cheap and self.prior is not None and (self._map is None or self._map.n_features == 3):
             self.follower = BandFollower(self.matcher, FollowParams(min_matches=MIN_GLINTS))
-        #: Bands identified by the cheap path and by the hypothesis search (dense bands).
-        self.counts = {"cheap": 0, "search": 0}
+        #: Dense bands identified by the cheap path, by the hypothesis search, and left to the
+        #: prior unsearched (:meth:`_unfillable`).
+        self.counts = {"cheap": 0, "search": 0, "unfillable": 0}
         self.reset()
 
     def reset(self) -> None:
@@ -268,6 +274,9 @@ class Tracker:
             if sample is not None:
                 self.counts["cheap"] += 1
                 return sample
+        if self.follower is not None and self._unfillable(time_s, rows):
+            self.counts["unfillable"] += 1
+            return failed_sample(f, j, time_s, OUT_OF_REACH, g)
         self.counts["search"] += 1
         match = self.matcher.match(g, rows=rows, prior_angles_rad=self._prior_angles)
         if not match.ok:
@@ -321,6 +330,11 @@ class Tracker:
         else:
             return None
         got = self.follower.follow(g, rows, prior, prior_term=fresh)
+        if got is None and not fresh and self._velocity is not None:
+            # The velocity of two bands 1 ms apart carries their estimation noise (tens of
+            # deg/s in a fixation, degrees over the ~11 ms to the next frame's glints): the
+            # last sample's own rotation, unextrapolated, is the second try.
+            got = self.follower.follow(g, rows, self._state[1], prior_term=False)
         if got is None:
             return None
         match, orbit = got.match, got.fit
@@ -439,17 +453,31 @@ class Tracker:
             self._velocity = (angles - self._state[1]) / (time_s - self._state[0])
         self._state = (time_s, angles, cov)
 
+    def _recent(self, time_s: float):
+        """(mean, covariance, age, reach) of the previous sample where it is at most
+        :data:`JUMP_AGE_S` old (reach: the furthest the eye turns since, v_max √2 Δt plus
+        :data:`JUMP_SLACK_DEG`, rad), else None."""
+        if self._state is None or self.prior is None:
+            return None
+        t0, mean, cov = self._state
+        dt = time_s - t0
+        if not 0 <= dt <= JUMP_AGE_S:
+            return None
+        reach = math.radians(self.prior.eye_speed_max_deg_s * math.sqrt(2.0) * dt + JUMP_SLACK_DEG)
+        return mean, cov, dt, reach
+
     def _implausible(self, time_s: float, angles_rad) -> bool:
         """Whether the eye rotation ``angles_rad`` is further from the previous sample's than
         the eye turns in the time between them (see :data:`JUMP_AGE_S`)."""
-        if self._state is None or self.prior is None:
-            return False
-        t0, mean, _ = self._state
-        dt = time_s - t0
-        if not 0 <= dt <= JUMP_AGE_S:
-            return False
-        reach = math.radians(self.prior.eye_speed_max_deg_s * math.sqrt(2.0) * dt + JUMP_SLACK_DEG)
-        return bool(np.hypot(*(np.asarray(angles_rad) - mean)) > reach)
+        recent = self._recent(time_s)
+        return recent is not None and bool(
+            np.hypot(*(np.asarray(angles_rad) - recent[0])) > recent[3])
+
+    def _unfillable(self, time_s: float, rows) -> bool:
+        """Whether no eye rotation :meth:`_implausible` accepts can put :data:`MIN_GLINTS`
+        glints on the band's rows (:data:`OUT_OF_REACH`)."""
+        recent = self._recent(time_s)
+        return recent is not None and self.matcher.band_capacity(rows, recent[0], recent[3]) < MIN_GLINTS
 
     def _glints(self, glints_px, lights) -> np.ndarray:
         out = np.full((1, self.n_lights, 2), np.nan)
@@ -466,5 +494,5 @@ class Tracker:
 
 #: Failures of a band's own identification, after which the band may still be identified with
 #: the prior (not a fit that failed on identified glints: those glints were the trouble).
-_IDENTITY_FAILURES = frozenset({"match_too_few_glints", "match_ambiguous", "match_no_hypothesis",
+_IDENTITY_FAILURES = frozenset({OUT_OF_REACH, "match_too_few_glints", "match_ambiguous", "match_no_hypothesis",
                                 "match_fit_failed", "too_few_glints"})

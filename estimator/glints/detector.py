@@ -94,6 +94,7 @@ from .params import (
 )
 from .spots import (
     _Boxes,
+    _blend_maxima,
     _deblend,
     _frame_timing,
     _gather,
@@ -241,7 +242,8 @@ def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionPa
     if elongated.size:
         px = _gather(box.take(elongated), labels)
         value = _weights(px, img, top, noise, table, params)[1]
-        px2, split = _deblend(px, value, np.arange(px.n), top, params)
+        px2, split = _deblend(px, value, np.arange(px.n), top, params,
+                              glint_kernels.blend_maxima if glint_kernels.ENABLED else _blend_maxima)
         if px2 is not None:
             replaced[elongated[split]] = True
             spots = _Spots.concat([spots, _measure_pixels(px2, img, top, noise, table,

@@ -1,8 +1,9 @@
 """Steps 2-6 of :mod:`estimator.glints.detector` after the top-hat, compiled with Numba (optional): the
 exact threshold and the connected components (:func:`components`), each component's centroid,
 shape and light (:func:`measure`), and the filters, strobe, time and flags of the spots that
-pass (:func:`finish`), one call each. Blended spots are still split by the numpy
-:func:`estimator.glints.spots._deblend` in between (rare: a few per hundred frames).
+pass (:func:`finish`), one call each, and the separated maxima of an elongated spot
+(:func:`blend_maxima`) for :func:`estimator.glints.spots._deblend` in between (Monte Carlo
+clutter of a 4-spp render makes ~20 elongated spots a frame: 2.2 of its 3 ms in numpy).
 
 Without Numba (``pip install scet`` without the ``fast`` extra, a platform with no Numba wheel,
 or ``NUMBA_DISABLE_JIT=1``) the detector runs its numpy and OpenCV path
@@ -293,6 +294,56 @@ if numba is not None:
             if blended[s]:
                 flags[i] |= blended_bit
         return (u[sel], v[sel], flux[sel], area[sel], out_peak, strobe, time_s, flags)
+
+    @_jit
+    def _blend_maxima_kernel(ys, xs, own, val, top, max_blend, blend_saddle):
+        """:func:`estimator.glints.spots._blend_maxima`, element by element in its order."""
+        h, w = top.shape
+        n = ys.size
+        diff = np.empty(n)
+        for i in range(n):
+            diff[i] = float(top[ys[i], xs[i]]) - val[i]
+        floor = np.median(diff)
+        cand = np.empty(n, dtype=np.int64)
+        m = 0
+        for i in range(n):
+            if not own[i]:
+                continue
+            nb = -math.inf
+            for dy in (-1, 0, 1):
+                y = min(max(ys[i] + dy, 0), h - 1)
+                for dx in (-1, 0, 1):
+                    if dy != 0 or dx != 0:
+                        x = min(max(xs[i] + dx, 0), w - 1)
+                        nb = max(nb, float(top[y, x]) - floor)
+            if val[i] > nb:
+                cand[m] = i
+                m += 1
+        if not 2 <= m <= max_blend:
+            return cand[:0]
+        for a in range(m):
+            ya, xa = float(ys[cand[a]]), float(xs[cand[a]])
+            for b in range(a + 1, m):
+                yb, xb = float(ys[cand[b]]), float(xs[cand[b]])
+                num = 2 + 2 * int(math.hypot(ya - yb, xa - xb))
+                step = 1.0 / (num - 1)
+                saddle = math.inf
+                for i in range(num):
+                    t = 1.0 if i == num - 1 else i * step + 0.0
+                    ly = int(np.rint(ya + t * (yb - ya)))
+                    lx = int(np.rint(xa + t * (xb - xa)))
+                    saddle = min(saddle, float(top[ly, lx]))
+                if not saddle - floor < blend_saddle * min(val[cand[a]], val[cand[b]]):
+                    return cand[:0]
+        return cand[:m].copy()
+
+
+def blend_maxima(ys, xs, own, val, top, params) -> np.ndarray:
+    """:func:`estimator.glints.spots._blend_maxima`, compiled (an elongated spot's separated
+    maxima; ~100 us a spot in numpy, and Monte Carlo clutter in a 4-spp render makes ~20
+    elongated spots a frame)."""
+    return _blend_maxima_kernel(ys, xs, own, np.asarray(val, dtype=np.float64), top,
+                                int(params.max_blend), float(params.blend_saddle))
 
 
 def _model(img: np.ndarray, noise, params, top_level: int):

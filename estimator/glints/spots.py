@@ -378,40 +378,52 @@ def _measure_patches(box: _Boxes, img, top, labels: _Labels, noise, table, param
     return _Spots(u, v, flux, elong, neighbour, raw_peak, dom, light)
 
 
-def _deblend(px: _Pixels, value, spots_idx, top, params: DetectionParams):
-    """Split elongated spots with 2..max_blend separated maxima among their maxima (each pixel
-    to its nearest maximum). Returns the new spots' pixels and the spots split, or
-    (None, []) when none splits."""
+def _blend_maxima(ys, xs, own, val, top, params: DetectionParams) -> np.ndarray:
+    """Indices of the separated maxima of one elongated spot (its pixels ``ys``, ``xs``, own
+    flags and values), or an empty array where it does not split: 2..max_blend 8-neighbour
+    local maxima among its own pixels, each pair's straight path dipping below
+    ``blend_saddle`` of the lower peak (:func:`estimator.glints.kernels.blend_maxima` is the
+    compiled form)."""
     h, w = top.shape
+    none = np.zeros(0, dtype=np.int64)
+    floor = float(np.median(top[ys, xs] - val))
+    # 8-neighbour local maxima among the spot's own pixels (the neighbours' rows and
+    # columns clamped to the image once per offset: np.clip costs ~14 us a call).
+    nb = np.full(ys.size, -np.inf)
+    near_y = [np.minimum(np.maximum(ys + d, 0), h - 1) for d in (-1, 0, 1)]
+    near_x = [np.minimum(np.maximum(xs + d, 0), w - 1) for d in (-1, 0, 1)]
+    for iy in range(3):
+        for ix in range(3):
+            if iy != 1 or ix != 1:
+                nb = np.maximum(nb, top[near_y[iy], near_x[ix]].astype(np.float64) - floor)
+    cand = np.flatnonzero(own & (val > nb))
+    if not 2 <= cand.size <= params.max_blend:
+        return none
+    cy, cx, cv = ys[cand].astype(float), xs[cand].astype(float), val[cand]
+    for a in range(cand.size):
+        for b in range(a + 1, cand.size):
+            t = np.linspace(0.0, 1.0, 2 + 2 * int(np.hypot(cy[a] - cy[b], cx[a] - cx[b])))
+            ly = np.rint(cy[a] + t * (cy[b] - cy[a])).astype(int)
+            lx = np.rint(cx[a] + t * (cx[b] - cx[a])).astype(int)
+            saddle = top[ly, lx].astype(np.float64).min() - floor
+            if not saddle < params.blend_saddle * min(cv[a], cv[b]):
+                return none
+    return cand
+
+
+def _deblend(px: _Pixels, value, spots_idx, top, params: DetectionParams, maxima=_blend_maxima):
+    """Split elongated spots with 2..max_blend separated maxima among their maxima (each pixel
+    to its nearest maximum; ``maxima``: :func:`_blend_maxima` or its compiled form). Returns
+    the new spots' pixels and the spots split, or (None, []) when none splits."""
     parts = []
     split = []
     for s in spots_idx:
         sl = slice(px.starts[s], px.starts[s + 1] if s + 1 < px.n else px.seg.size)
         ys, xs, own, usable, val = px.ys[sl], px.xs[sl], px.own[sl], px.usable[sl], value[sl]
-        floor = float(np.median(top[ys, xs] - val))
-        # 8-neighbour local maxima among the spot's own pixels (the neighbours' rows and
-        # columns clamped to the image once per offset: np.clip costs ~14 us a call).
-        nb = np.full(ys.size, -np.inf)
-        near_y = [np.minimum(np.maximum(ys + d, 0), h - 1) for d in (-1, 0, 1)]
-        near_x = [np.minimum(np.maximum(xs + d, 0), w - 1) for d in (-1, 0, 1)]
-        for iy in range(3):
-            for ix in range(3):
-                if iy != 1 or ix != 1:
-                    nb = np.maximum(nb, top[near_y[iy], near_x[ix]].astype(np.float64) - floor)
-        cand = np.flatnonzero(own & (val > nb))
-        if not 2 <= cand.size <= params.max_blend:
+        cand = maxima(ys, xs, own, val, top, params)
+        if cand.size == 0:
             continue
-        cy, cx, cv = ys[cand].astype(float), xs[cand].astype(float), val[cand]
-        separated = True
-        for a in range(cand.size):
-            for b in range(a + 1, cand.size):
-                t = np.linspace(0.0, 1.0, 2 + 2 * int(np.hypot(cy[a] - cy[b], cx[a] - cx[b])))
-                ly = np.rint(cy[a] + t * (cy[b] - cy[a])).astype(int)
-                lx = np.rint(cx[a] + t * (cx[b] - cx[a])).astype(int)
-                saddle = top[ly, lx].astype(np.float64).min() - floor
-                separated &= saddle < params.blend_saddle * min(cv[a], cv[b])
-        if not separated:
-            continue
+        cy, cx = ys[cand].astype(float), xs[cand].astype(float)
         nearest = np.argmin((ys[:, None] - cy) ** 2 + (xs[:, None] - cx) ** 2, axis=1)
         split.append(s)
         for k in range(cand.size):

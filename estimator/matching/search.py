@@ -8,6 +8,7 @@ matcher's setup, parameters, calibrated problem and prediction grid.
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -36,6 +37,39 @@ class HypothesisSearch:
         same[inside] = self.group[moved[inside]] == self.group[assign[m][inside]]
         out[np.flatnonzero(m)[same]] = moved[same]
         return out
+
+    def band_capacity(self, rows, center_rad, reach_rad: float) -> int:
+        """Most candidate glints any eye rotation within ``reach_rad`` of ``center_rad`` (Fick
+        yaw, pitch) can put on the band's ``rows`` (first, last): an upper bound of the lights
+        a search of the band can match at such a rotation.
+
+        The grid's nodes within the reach widened by a cell's half diagonal stand for every
+        rotation of it; each node counts its visible glints inside the rows widened by the
+        band margin and by :attr:`grid_drift_px`, the furthest a glint moves between
+        neighbouring nodes (a rotation lies within half a step in each angle of a node)."""
+        m = self.params.band_margin_px + self.grid_drift_px
+        lo, hi = float(rows[0]) - m, float(rows[1]) + m
+        reach = float(reach_rad) + math.radians(self.params.grid_step_deg) / math.sqrt(2.0)
+        center = np.asarray(center_rad, dtype=np.float64).reshape(2)
+        if kernels.ENABLED:
+            return int(kernels.band_capacity(self.grid_glints_px, self.grid_visible,
+                                             self.grid_angles_rad, center, reach, lo, hi))
+        near = np.hypot(*(self.grid_angles_rad - center).T) <= reach
+        if not near.any():
+            return 0
+        v = self.grid_glints_px[near, :, 1]
+        return int((self.grid_visible[near] & (v >= lo) & (v <= hi)).sum(axis=1).max())
+
+    def _grid_drift(self) -> float:
+        """The furthest any light's glint moves between neighbouring grid nodes (px), both
+        visible: :attr:`grid_drift_px`, set by the matcher once its grid is predicted."""
+        G = self.grid_glints_px.reshape(self._grid_shape + self.grid_glints_px.shape[1:])
+        V = self.grid_visible.reshape(self._grid_shape + self.grid_visible.shape[1:])
+        drift = 0.0
+        for a, b, both in ((G[1:], G[:-1], V[1:] & V[:-1]), (G[:, 1:], G[:, :-1], V[:, 1:] & V[:, :-1])):
+            d = np.linalg.norm(a - b, axis=-1)[both]
+            drift = max(drift, float(d.max()) if d.size else 0.0)
+        return drift
 
     def _coarse(self, g, lo, hi, nodes, count) -> list[np.ndarray]:
         """Angles of the ``count`` best local minima of the score over the grid (or over the

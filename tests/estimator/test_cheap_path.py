@@ -138,3 +138,71 @@ def test_the_small_fit_refuses_a_half_given_prior(setup, calibration):  # noqa: 
     with pytest.raises(ValueError, match="together"):
         fit_small(orbit, np.zeros((3, 2)), orbit.lights_world_m[:3], np.zeros(2),
                   model="orbit", prior_mean=np.zeros(2))
+
+
+def test_band_capacity_bounds_every_reachable_rotation(setup, calibration):  # noqa: F811
+    """No rotation within the reach puts more candidates on a band's rows than its capacity
+    (500 random off-grid rotations per case), and a band the eye's glints cannot reach has a
+    capacity under the tracker's 5 glints while the band holding them has at least theirs."""
+    problems = calibrated_problems(setup, calibration)
+    m = GlintMatcher(setup, calibration=calibration, problem=problems.orbit)
+    rng = np.random.default_rng(5)
+    b = m.params.band_margin_px
+    H = setup.camera.height_px
+    for center_deg, reach_deg in (((0.0, -15.0), 4.0), ((5.0, 5.0), 12.0), ((-10.0, 0.0), 2.0)):
+        center, reach = np.radians(center_deg), np.radians(reach_deg)
+        r = reach * np.sqrt(rng.random(500))
+        phi = rng.uniform(0, 2 * np.pi, 500)
+        angles = center + np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
+        g, vis = m.predict(angles)
+        for lo in range(0, H, H // 12):
+            rows = (lo, lo + H // 12)
+            cap = m.band_capacity(rows, center, reach)
+            v = g[..., 1]
+            count = (vis & (v >= rows[0] - b) & (v <= rows[1] + b)).sum(axis=1)
+            assert count.max() <= cap, (center_deg, reach_deg, rows)
+    # Looking 15 deg down, 4 deg of reach: the glints sit low in the frame.
+    center, reach = np.radians([0.0, -15.0]), np.radians(4.0)
+    g, vis = m.predict(center)
+    top = (0, g[vis, 1].min() - 10 * b - m.grid_drift_px)
+    assert m.band_capacity(top, center, reach) < 5
+    holding = (g[vis, 1].min(), g[vis, 1].min() + 40)
+    inside = (vis & (g[:, 1] >= holding[0]) & (g[:, 1] <= holding[1])).sum()
+    assert m.band_capacity(holding, center, reach) >= inside >= 5
+
+
+def test_a_band_out_of_reach_is_left_to_the_prior(setup, calibration):  # noqa: F811
+    """Clutter blobs on the top bands while the eye looks down, its glints far below: the
+    cheap path leaves those bands unsearched (``band_out_of_reach``, NaN or the prior's
+    estimate), and every sample the search gives an estimate keeps it, identities and all."""
+    from estimator.banding import band_layout
+    from estimator.tracker import OUT_OF_REACH
+
+    rng = np.random.default_rng(8)
+    frames = []
+    for f in range(5):
+        img = draw_frame(setup, f, np.radians(2.0), np.radians(-14.0), rng).astype(float)
+        bands = [bd for bd in band_layout(setup.sensor, setup.strobe, f)
+                 if bd.visible and bd.last_row - bd.first_row >= 20]
+        yy, xx = np.mgrid[0:img.shape[0], 0:img.shape[1]]
+        lo, hi = bands[0].first_row, bands[0].last_row
+        for u, v in zip(rng.uniform(200, 440, 7), rng.uniform(lo + 3, hi - 3, 7)):
+            img += 500.0 * np.exp(-((xx - u) ** 2 + (yy - v) ** 2) / (2 * 1.2 ** 2))
+        frames.append(np.clip(np.rint(img), 0, 1023).astype(np.uint16))
+    out = {}
+    for cheap in (False, True):
+        tr = Tracker(setup, calibration, "polynomial", cheap=cheap)
+        out[cheap] = [s for f, img in enumerate(frames) for s in tr.process(img, f)]
+        counts = tr.counts
+    assert counts["unfillable"] >= 3, counts
+    relabelled = 0
+    for a, b in zip(out[False], out[True]):
+        if b.reason == OUT_OF_REACH:
+            assert not a.ok and not b.ok
+            relabelled += 1
+            continue
+        assert a.reason == b.reason and np.array_equal(a.light_index, b.light_index)
+        if a.ok:
+            assert np.abs(a.cornea_center_m - b.cornea_center_m).max() < 1e-7  # as above
+    assert relabelled >= 3
+    assert sum(s.ok for s in out[True]) == sum(s.ok for s in out[False]) > 0
