@@ -18,7 +18,7 @@ samples out), whether both give the same samples (reasons, identities, estimates
 where each band's microseconds go on the cheap path, and the estimated Raspberry Pi 3B+ figure.
 Usage:
 
-    python benchmarks/bench_tracker.py [--frames 60] [--rounds 3] [--dataset DIR]
+    python benchmarks/bench_tracker.py [--frames 60] [--rounds 3] [--dataset DIR [--pulses N]]
 
 60 frames are one second of video: a stream's first cold search and the searches after
 saccades that cross a frame gap weigh in as in a longer run.
@@ -150,8 +150,15 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--dataset", type=Path, default=None)
+    ap.add_argument("--pulses", type=int, default=None,
+                    help="pulses per frame of --dataset (default: the scene's; the quick "
+                         "validation's test_p8 needs 8)")
     args = ap.parse_args(argv)
     setup = load_scene("paper_sim")
+    if args.pulses is not None:
+        from estimator.banding import strobe_setup
+
+        setup = strobe_setup(setup, args.pulses)
     rng = np.random.default_rng(0)
     cv2.setNumThreads(1)
     if args.dataset is not None:

@@ -21,10 +21,10 @@ one for one, so that a hypothesis converges, or does not, as it does there:
 - the damped system is solved by cofactors, as ``solve._solve_small``.
 
 The glints are :func:`estimator.geometry.compiled.glints_kernel`'s (the closed-form projection
-to ~1e-12 px) and the Jacobian is by central differences (1e-6 rad, 1e-8 m: ~1e-9 relative
-error), where the batched solver has the analytic rows: the steps differ in the ninth digit,
-the minima not (``tests/estimator/test_cornea_replica.py`` holds both to 1e-9 rad / 1e-10 m
-and the convergence flags equal on the search's own refits).
+to ~1e-12 px) with its closed-form rows of d glint / d centre, the batched solver's analytic
+rows written one glint at a time (to ~1e-15 relative): the steps agree to rounding
+(``tests/estimator/test_cornea_replica.py`` holds both to 1e-9 rad / 1e-10 m and the
+convergence flags equal on the search's own refits).
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ import estimator.cornea.solve as solve
 
 from ..geometry import compiled
 from .problem import FitProblem
-from .small import _H_M, _H_RAD, _residuals
+from .small import _residuals_rows
 
 __all__ = ["ENABLED", "fit_replica"]
 
@@ -46,20 +46,10 @@ __all__ = ["ENABLED", "fit_replica"]
 ENABLED = compiled.ENABLED
 
 
-def _normal(cam, model, x, ce, rco, radius, lights, glints, h, g, vis, c, res, res_p, res_m,
-            J, JtJ, Jtr):
-    """Cost Σ r² at x, and JᵀJ, Jᵀr (written out) with J by central differences."""
+def _normal(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res, jac, J, JtJ, Jtr):
+    """Cost Σ r² at x, and JᵀJ, Jᵀr (written out) with J in closed form."""
     k, p = glints.shape[0], x.shape[0]
-    cost = _residuals(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res)
-    xs = x.copy()
-    for j in range(p):
-        xs[j] = x[j] + h
-        _residuals(cam, model, xs, ce, rco, radius, lights, glints, g, vis, c, res_p)
-        xs[j] = x[j] - h
-        _residuals(cam, model, xs, ce, rco, radius, lights, glints, g, vis, c, res_m)
-        xs[j] = x[j]
-        for i in range(2 * k):
-            J[i, j] = (res_p[i] - res_m[i]) / (2 * h)
+    cost = _residuals_rows(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res, jac, J)
     for a in range(p):
         s = 0.0
         for i in range(2 * k):
@@ -97,8 +87,8 @@ def _cofactor_solve(A, b, out):
     out[2] = (c02 * b[0] + c12 * b[1] + c22 * b[2]) / det
 
 
-def _lm_rules(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_iter, h,
-              gn_stop, lam0, xtol, ftol, x):
+def _lm_rules(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_iter, gn_stop,
+              lam0, xtol, ftol, x):
     """``solve._lm_block`` for one sample (module docstring); x is written out. Returns the
     cost, the iterations and whether it converged."""
     cam = (R, O, intr, size)
@@ -106,7 +96,8 @@ def _lm_rules(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_
     g = np.empty((k, 2))
     vis = np.empty(k, dtype=np.bool_)
     c = np.empty(3)
-    res, res_p, res_m = np.empty(2 * k), np.empty(2 * k), np.empty(2 * k)
+    res = np.empty(2 * k)
+    jac = np.empty((k, 2, 3))
     J = np.empty((2 * k, p))
     JtJ, Jtr = np.empty((p, p)), np.empty(p)
     JtJ_n, Jtr_n = np.empty((p, p)), np.empty(p)
@@ -114,8 +105,8 @@ def _lm_rules(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_
     step, x_new = np.empty(p), np.empty(p)
     for j in range(p):
         x[j] = x0[j]
-    cost = _normal(cam, model, x, ce, rco, radius, lights, glints, h, g, vis, c, res, res_p,
-                   res_m, J, JtJ, Jtr)
+    cost = _normal(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res, jac, J, JtJ,
+                   Jtr)
     lam = lam0
     iters = 0
     converged = False
@@ -150,8 +141,8 @@ def _lm_rules(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_
             cost = max(pred, 0.0)
             converged = True
             break
-        cost_new = _normal(cam, model, x_new, ce, rco, radius, lights, glints, h, g, vis, c,
-                           res, res_p, res_m, J, JtJ_n, Jtr_n)
+        cost_new = _normal(cam, model, x_new, ce, rco, radius, lights, glints, g, vis, c, res,
+                           jac, J, JtJ_n, Jtr_n)
         better = math.isfinite(cost_new) and cost_new <= cost
         small = True
         for j in range(p):
@@ -210,14 +201,14 @@ def fit_replica(problem: FitProblem, glints_px, lights_world_m, x0, *, model: st
         raise ValueError(f"need as many glints as lights and >= {p} coordinates, "
                          f"got {g.shape[0]} glints and {L.shape[0]} lights")
     if model == "orbit":
-        ce, rco, h = np.asarray(problem.eye_center_m, dtype=np.float64), float(problem.orbit_radius_m), _H_RAD
+        ce, rco = np.asarray(problem.eye_center_m, dtype=np.float64), float(problem.orbit_radius_m)
         gn_stop = solve._GN_STOP / rco
     else:
-        ce, rco, h, gn_stop = np.zeros(3), 0.0, _H_M, solve._GN_STOP
+        ce, rco, gn_stop = np.zeros(3), 0.0, solve._GN_STOP
     R, O, intr, size = compiled.camera_arrays(problem.camera) if arrays is None else arrays
     x = np.empty(p)
     _, iters, converged = _lm_rules(R, O, intr, size, 1 if model == "orbit" else 0, x0, ce,
-                                    rco, float(problem.cornea_radius_m), L, g, int(max_iter), h,
+                                    rco, float(problem.cornea_radius_m), L, g, int(max_iter),
                                     gn_stop, solve._LAMBDA0, solve._XTOL, solve._FTOL, x)
     ok = bool(converged and np.isfinite(x).all())
     return (x if ok else np.full(p, np.nan)), ok, int(iters)

@@ -5,8 +5,9 @@ numpy calls than the fit itself.
 
 Compiled with Numba (optional; :data:`estimator.geometry.compiled.ENABLED`): Levenberg-
 Marquardt on the glints of :func:`estimator.geometry.compiled.glints_one_pose`, the Jacobian
-by central differences (steps 1e-6 rad, 1e-8 m: ~1e-9 relative error in J, which moves only
-the path to the minimum, not the minimum, fixed by the residuals), stopped when a step is
+in closed form (the projection's implicit derivative, :func:`_residuals_rows`, as
+:mod:`estimator.geometry.jacobians`: one projection an iteration where central differences
+took 2p more), stopped when a step is
 below 1e-12 m of cornea-centre motion. :func:`fit_cornea` stops at 1e-7 m steps with an error
 left of <= 4e-10 m (``solve._GN_STOP``), so both reach the same centre to ~1e-9 m, 1e-4 of the
 scatter 0.5 px of glint noise leaves (tested against it). Without Numba, :func:`fit_small`
@@ -28,8 +29,6 @@ from .solve import normal_equations
 
 #: Stopping step (m of cornea-centre motion; the orbit's angles count r_co per radian).
 _XTOL_M = 1e-12
-#: Central-difference steps of the Jacobian: rad (orbit), m (centre).
-_H_RAD, _H_M = 1e-6, 1e-8
 
 
 class SmallFit(NamedTuple):
@@ -57,12 +56,42 @@ def _centre(model, x, ce, rco, out):
 def _residuals(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res):
     R, O, intr, size = cam
     _centre(model, x, ce, rco, c)
-    compiled.glints_kernel(R, O, intr, size, c, radius, lights, c, 0.0, False, g, vis)
+    compiled.glints_kernel(R, O, intr, size, c, radius, lights, c, 0.0, False, g, vis, False,
+                           compiled.NO_JACOBIAN)
     cost = 0.0
     for i in range(glints.shape[0]):
         du, dv = g[i, 0] - glints[i, 0], g[i, 1] - glints[i, 1]
         res[2 * i], res[2 * i + 1] = du, dv
         cost += du * du + dv * dv
+    return cost
+
+
+def _residuals_rows(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res, jac, J):
+    """:func:`_residuals` and their Jacobian J (2k, p) at x, in closed form: the projection's
+    d glint / d centre (``jac``, (k, 2, 3) scratch), through the orbit for model 1."""
+    R, O, intr, size = cam
+    _centre(model, x, ce, rco, c)
+    compiled.glints_kernel(R, O, intr, size, c, radius, lights, c, 0.0, False, g, vis, True,
+                           jac)
+    cost = 0.0
+    k = glints.shape[0]
+    for i in range(k):
+        du, dv = g[i, 0] - glints[i, 0], g[i, 1] - glints[i, 1]
+        res[2 * i], res[2 * i + 1] = du, dv
+        cost += du * du + dv * dv
+    if model == 0:
+        for i in range(k):
+            for j in range(3):
+                J[2 * i, j], J[2 * i + 1, j] = jac[i, 0, j], jac[i, 1, j]
+        return cost
+    # d c / d (yaw, pitch) of c = c_e + r_co (cos p sin y, sin p, -cos p cos y).
+    cy, sy, cp, sp = math.cos(x[0]), math.sin(x[0]), math.cos(x[1]), math.sin(x[1])
+    dy0, dy2 = rco * cp * cy, rco * cp * sy
+    dp0, dp1, dp2 = -rco * sp * sy, rco * cp, rco * sp * cy
+    for i in range(k):
+        for r in range(2):
+            J[2 * i + r, 0] = jac[i, r, 0] * dy0 + jac[i, r, 2] * dy2
+            J[2 * i + r, 1] = jac[i, r, 0] * dp0 + jac[i, r, 1] * dp1 + jac[i, r, 2] * dp2
     return cost
 
 
@@ -104,8 +133,8 @@ def _prior_cost(x, pm, P):
     return cost
 
 
-def _lm(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_iter, xtol, h,
-        pm, P, x, JtJ):
+def _lm(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_iter, xtol, pm, P,
+        x, JtJ):
     """Levenberg-Marquardt from x0 on the glints' squared residuals plus the prior's
     (x - pm)ᵀ P (x - pm) (P = 0: none); x and the glints' JᵀJ at it are written out. Returns
     the glints' share of the cost, the iterations and whether it converged."""
@@ -116,7 +145,7 @@ def _lm(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_iter, 
     c = np.empty(3)
     res = np.empty(2 * k)
     res_p = np.empty(2 * k)
-    res_m = np.empty(2 * k)
+    jac = np.empty((k, 2, 3))
     J = np.empty((2 * k, p))
     Jtr = np.empty(p)
     A = np.empty((p, p))
@@ -132,15 +161,7 @@ def _lm(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_iter, 
     for _ in range(max_iter):
         if not math.isfinite(cost):
             break
-        for j in range(p):
-            for q in range(p):
-                x_new[q] = x[q]
-            x_new[j] = x[j] + h
-            _residuals(cam, model, x_new, ce, rco, radius, lights, glints, g, vis, c, res_p)
-            x_new[j] = x[j] - h
-            _residuals(cam, model, x_new, ce, rco, radius, lights, glints, g, vis, c, res_m)
-            for i in range(2 * k):
-                J[i, j] = (res_p[i] - res_m[i]) / (2 * h)
+        _residuals_rows(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res, jac, J)
         for a in range(p):
             s = 0.0
             for i in range(2 * k):
@@ -190,6 +211,7 @@ if compiled.ENABLED:
     _jit = compiled.numba.njit(cache=True, nogil=True, error_model="numpy")
     _centre = _jit(_centre)
     _residuals = _jit(_residuals)
+    _residuals_rows = _jit(_residuals_rows)
     _solve = _jit(_solve)
     _prior_cost = _jit(_prior_cost)
     _lm = _jit(_lm)
@@ -240,17 +262,16 @@ def fit_small(problem: FitProblem, glints_px, lights_world_m, x0, *, model: str,
         return _fit_numpy(problem, g, L, x0, model, max_iter,
                           (pm, P) if has_prior else (None, None))
     if model == "orbit":
-        ce, rco, h = problem.eye_center_m, float(problem.orbit_radius_m), _H_RAD
+        ce, rco = problem.eye_center_m, float(problem.orbit_radius_m)
         xtol = _XTOL_M / rco
     else:
-        ce, rco, h, xtol = np.zeros(3), 0.0, _H_M, _XTOL_M
+        ce, rco, xtol = np.zeros(3), 0.0, _XTOL_M
     R, O, intr, size = compiled.camera_arrays(problem.camera) if arrays is None else arrays
     x = np.empty(p)
     JtJ = np.zeros((p, p))
     cost, iters, converged = _lm(R, O, intr, size, 1 if model == "orbit" else 0, x0,
                                  np.asarray(ce, dtype=np.float64), rco,
-                                 problem.cornea_radius_m, L, g, max_iter, xtol, h, pm, P, x,
-                                 JtJ)
+                                 problem.cornea_radius_m, L, g, max_iter, xtol, pm, P, x, JtJ)
     ok = bool(converged and np.isfinite(x).all() and math.isfinite(cost))
     return SmallFit(x, math.sqrt(max(cost, 0.0) / g.shape[0]) if ok else math.nan, JtJ,
                     int(iters), ok)

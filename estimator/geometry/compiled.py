@@ -18,6 +18,7 @@ import math
 import numpy as np
 
 from .camera import Camera
+from .jacobians import glint_jacobians
 from .reflection import project_glints
 
 try:
@@ -29,6 +30,8 @@ except ImportError:  # the numpy projection runs instead
 ENABLED = numba is not None and not numba.config.DISABLE_JIT
 
 _STEP_STOP_RAD = 1e-8  # as estimator.geometry.roots
+#: The ``jac`` argument of :func:`glints_kernel` when no Jacobian is wanted.
+NO_JACOBIAN = np.empty((0, 2, 3))
 _MAX_NEWTON_ITER = 60
 
 
@@ -83,9 +86,12 @@ def _root(a, b, cp, sp):
 
 
 def glints_kernel(R, O, intr, size, center, radius, lights, axis, cap_cos_min, use_cap,
-                   out, visible):
+                   out, visible, with_jacobian, jac):
     """Glints (n, 2) and visibility (n,) of ``lights`` (n, 3) for one cornea ``center`` (3,),
-    world frame in, pixels out (``intr`` = fx, fy, cx, cy; ``size`` = width, height)."""
+    world frame in, pixels out (``intr`` = fx, fy, cx, cy; ``size`` = width, height). With
+    ``with_jacobian``, also d glint / d centre (n, 2, 3) (px per metre, world frame) into
+    ``jac`` (:data:`NO_JACOBIAN` otherwise): the closed form of
+    :func:`estimator.geometry.jacobians.jacobian_terms`."""
     d0, d1, d2 = center[0] - O[0], center[1] - O[1], center[2] - O[2]
     cx = R[0, 0] * d0 + R[0, 1] * d1 + R[0, 2] * d2
     cy = R[1, 0] * d0 + R[1, 1] * d1 + R[1, 2] * d2
@@ -134,12 +140,50 @@ def glints_kernel(R, O, intr, size, center, radius, lights, axis, cap_cos_min, u
             u = v = math.nan
         out[i, 0], out[i, 1] = u, v
         visible[i] = ok and -0.5 <= u <= size[0] - 0.5 and -0.5 <= v <= size[1] - 0.5
+        if with_jacobian:
+            _jacobian_rows(R, intr, radius, a, b, ct, st, c1, e1x, e1y, e1z, e2x, e2y, e2z,
+                           nx, ny, nz, X, Y, Z, jac, i)
+
+
+def _jacobian_rows(R, intr, radius, a, b, ct, st, c1, e1x, e1y, e1z, e2x, e2y, e2z, nx, ny,
+                   nz, X, Y, Z, jac, i):
+    """Row i of d glint / d centre (2, 3), world frame, from one pair's plane and root (the
+    implicit derivative of the law of reflection, :mod:`estimator.geometry.jacobians`)."""
+    inv_qa = 1.0 / math.sqrt(max(a * a - 2 * a * ct + 1, 1e-300))
+    qb = math.sqrt(max(b * b - 2 * b * c1 + 1, 1e-300))
+    cos_i = (a * ct - 1) * inv_qa
+    sin_i = a * st * inv_qa
+    inv_du, inv_dw = inv_qa / radius, 1.0 / (radius * qb)
+    rH, rD = radius * (inv_du + inv_dw), radius * (inv_dw - inv_du)
+    inv_g = 1.0 / (2 + rH * cos_i)
+    inv_qk = 1.0 / (2 * cos_i + rH)
+    b_tn = rD * sin_i * inv_g
+    tx, ty, tz = st * e1x - ct * e2x, st * e1y - ct * e2y, st * e1z - ct * e2z
+    kx, ky, kz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    iz = 1.0 / Z
+    xz, yz = X * iz, Y * iz
+    fxz, fyz = intr[0] * iz, intr[1] * iz
+    pt_x, pt_y = tx - xz * tz, ty - yz * tz
+    pk_x, pk_y = kx - xz * kz, ky - yz * kz
+    m_t, m_k = 1 - 2 * inv_g, 1 - 2 * cos_i * inv_qk
+    wx, wy, wz = m_t * tx + b_tn * nx, m_t * ty + b_tn * ny, m_t * tz + b_tn * nz
+    qx, qy = m_k * pk_x, m_k * pk_y
+    u0 = fxz * (1 - pt_x * wx - qx * kx)
+    u1 = fxz * -(pt_x * wy + qx * ky)
+    u2 = fxz * -(xz + pt_x * wz + qx * kz)
+    v0 = fyz * -(pt_y * wx + qy * kx)
+    v1 = fyz * (1 - pt_y * wy - qy * ky)
+    v2 = fyz * -(yz + pt_y * wz + qy * kz)
+    for j in range(3):
+        jac[i, 0, j] = u0 * R[0, j] + u1 * R[1, j] + u2 * R[2, j]
+        jac[i, 1, j] = v0 * R[0, j] + v1 * R[1, j] + v2 * R[2, j]
 
 
 if ENABLED:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
     _condition = _jit(_condition)
     _root = _jit(_root)
+    _jacobian_rows = _jit(_jacobian_rows)
     glints_kernel = _jit(glints_kernel)
 
 
@@ -150,6 +194,31 @@ def camera_arrays(camera: Camera):
             np.ascontiguousarray(camera.position_m, dtype=np.float64),
             np.array([camera.fx_px, camera.fy_px, camera.cx_px, camera.cy_px]),
             np.array([float(camera.width_px), float(camera.height_px)]))
+
+
+def glints_and_rows_one_pose(camera: Camera, center_m, radius_m: float, lights_world_m, *,
+                             cornea_axis=None, cap_cos_min: float | None = None, arrays=None):
+    """:func:`glints_one_pose` and d glint / d cornea centre (n, 2, 3) (px per metre), the
+    closed form of :func:`estimator.geometry.glint_jacobians` (compiled where Numba is)."""
+    if not ENABLED:
+        g, vis, d_center, _, _ = glint_jacobians(camera, center_m, radius_m, lights_world_m,
+                                                 cornea_axis=cornea_axis,
+                                                 cap_cos_min=cap_cos_min,
+                                                 radius_and_lights=False)
+        return g, vis, d_center
+    center = np.asarray(center_m, dtype=np.float64).reshape(3)
+    lights = np.ascontiguousarray(lights_world_m, dtype=np.float64)
+    if (cornea_axis is None) != (cap_cos_min is None):
+        raise ValueError("cornea_axis and cap_cos_min must be given together")
+    R, O, intr, size = camera_arrays(camera) if arrays is None else arrays
+    out = np.empty((lights.shape[0], 2))
+    vis = np.empty(lights.shape[0], dtype=np.bool_)
+    jac = np.empty((lights.shape[0], 2, 3))
+    use_cap = cornea_axis is not None
+    axis = np.asarray(cornea_axis, dtype=np.float64).reshape(3) if use_cap else np.zeros(3)
+    glints_kernel(R, O, intr, size, center, float(radius_m), lights, axis,
+                  float(cap_cos_min) if use_cap else 0.0, use_cap, out, vis, True, jac)
+    return out, vis, jac
 
 
 def glints_one_pose(camera: Camera, center_m, radius_m: float, lights_world_m, *,
@@ -172,5 +241,6 @@ def glints_one_pose(camera: Camera, center_m, radius_m: float, lights_world_m, *
     use_cap = cornea_axis is not None
     axis = np.asarray(cornea_axis, dtype=np.float64).reshape(3) if use_cap else np.zeros(3)
     glints_kernel(R, O, intr, size, center, float(radius_m), np.ascontiguousarray(lights),
-                   axis, float(cap_cos_min) if use_cap else 0.0, use_cap, out, vis)
+                   axis, float(cap_cos_min) if use_cap else 0.0, use_cap, out, vis, False,
+                   NO_JACOBIAN)
     return out, vis

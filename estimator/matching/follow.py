@@ -169,11 +169,7 @@ class BandFollower:
         first order about x (linearised glints pred + J δ, the four rivals at once); inf
         without a rival, -inf where the linearisation cannot place one (the search decides)."""
         m, p = self.matcher, self.matcher.params
-        h = 1e-6
-        pred, vis = self.predict(x)
-        dy = (self.predict((x[0] + h, x[1]))[0] - self.predict((x[0] - h, x[1]))[0]) / (2 * h)
-        dp = (self.predict((x[0], x[1] + h))[0] - self.predict((x[0], x[1] - h))[0]) / (2 * h)
-        J = np.stack([dy, dp], axis=-1)  # (n, 2, 2) px / rad
+        pred, vis, J = m._predict_one_rows(float(x[0]), float(x[1]))  # J (n, 2, 2) px / rad
         if kernels.ENABLED:
             return kernels.rival_margin(g, assign, pred, J, vis, self._shifted, x, prior, lo, hi,
                                         p.gate_px, p.band_margin_px, p.noise_px,

@@ -56,7 +56,7 @@ import estimator.matching.kernels as kernels
 from ..calibration import Calibration
 from ..cornea import FitProblem
 from ..eye import fick_angles, gaze_direction
-from ..geometry import camera_arrays, glints_one_pose, project_glints
+from ..geometry import camera_arrays, glints_and_rows_one_pose, glints_one_pose, project_glints
 from ..setup import Setup
 from .model import _Hypothesis, _Prior, calibrated_eye
 from .params import (
@@ -169,6 +169,20 @@ class GlintMatcher(HypothesisSearch):
         return glints_one_pose(self.setup.camera, center, eye.cornea_radius_m,
                                self.lights_world_m, cornea_axis=axis,
                                cap_cos_min=eye.cap_cos_min, arrays=self.arrays)
+
+    def _predict_one_rows(self, yaw: float, pitch: float):
+        """:meth:`_predict_one` and d glint / d (yaw, pitch) (n, 2, 2) (px per rad) in closed
+        form (:func:`estimator.geometry.glints_and_rows_one_pose` through the orbit)."""
+        eye = self.eye
+        cp, sp, cy, sy = math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
+        axis = np.array([cp * sy, sp, -cp * cy])
+        center = eye.rotation_center_m + eye.cornea_offset_m * axis
+        g, vis, d_center = glints_and_rows_one_pose(
+            self.setup.camera, center, eye.cornea_radius_m, self.lights_world_m,
+            cornea_axis=axis, cap_cos_min=eye.cap_cos_min, arrays=self.arrays)
+        r = eye.cornea_offset_m
+        d_angles = np.array([[r * cp * cy, -r * sp * sy], [0.0, r * cp], [r * cp * sy, r * sp * cy]])
+        return g, vis, d_center @ d_angles
 
     def _predict_each(self, x):
         """:meth:`_predict_x` one pose at a time by the compiled projection, where numpy's
@@ -305,12 +319,8 @@ class GlintMatcher(HypothesisSearch):
         weight = (V / w) @ V.T
         prior = _Prior(mean, weight, (mean, p.noise_px ** 2 * weight))
         # Prior SD of each predicted glint: the largest over lights of the projected covariance
-        # J Σ Jᵀ, J by central differences of the prediction (0.1 mrad: 0.01-0.1 px).
-        h = 1e-4
-        steps = np.array([[h, 0.0], [-h, 0.0], [0.0, h], [0.0, -h]])
-        pred, vis = self._predict_x(mean + steps)
-        J = np.stack([pred[0] - pred[1], pred[2] - pred[3]], axis=-1) / (2 * h)  # (n, 2, 2)
-        both = vis.all(axis=0)
+        # J Σ Jᵀ, J (n, 2, 2) the prediction's closed-form derivative at the prior's mean.
+        _, both, J = self._predict_one_rows(float(mean[0]), float(mean[1]))
         spread = 0.0
         if both.any():
             C = J[both] @ cov @ np.swapaxes(J[both], 1, 2)
