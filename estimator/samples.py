@@ -20,6 +20,18 @@ from .formats import SAMPLES_FORMAT, SAMPLES_READABLE, SAMPLES_VERSION, atomic_w
 
 
 
+def inverse_2x2(A, rcond: float = 1e-12):
+    """The inverse of a symmetric positive semi-definite 2 x 2 matrix (a JᵀJ, a covariance) in
+    closed form, or None where its determinant is not above ``rcond`` a₀₀ a₁₁, i.e. where it is
+    (nearly) singular (np.linalg.inv and det cost ~15 us a call on a 2 x 2, and every sample
+    inverts a few)."""
+    a, b, c, d = float(A[0, 0]), float(A[0, 1]), float(A[1, 0]), float(A[1, 1])
+    det = a * d - b * c
+    if not det > rcond * a * d:
+        return None
+    return np.array([[d, -b], [-c, a]]) / det
+
+
 @dataclass(frozen=True, slots=True)
 class BandPrior:
     """Motion model of the prior a sparse band borrows from the previous sample.

@@ -56,7 +56,8 @@ from .gaze import (
 )
 from .glints import NO_BAND, DetectionParams, GlintDetections, GlintDetector
 from .matching import BandFollower, FollowParams, GlintMatcher, MatchParams
-from .samples import BandPrior, GazeSample, TrackerInputError, failed_sample  # noqa: F401
+from .samples import (BandPrior, GazeSample, TrackerInputError, failed_sample,  # noqa: F401
+                      inverse_2x2)
 from .setup import Setup
 
 log = logging.getLogger(__name__)
@@ -357,8 +358,8 @@ class Tracker:
         self._prior_angles = match.angles_rad
         self._start = resume.copy()
         JtJ = orbit.JtJ
-        well = np.linalg.det(JtJ) > 1e-12 * JtJ[0, 0] * JtJ[1, 1]
-        cov = self.prior.noise_px ** 2 * np.linalg.inv(JtJ) if well else np.full((2, 2), np.inf)
+        inv = inverse_2x2(JtJ)
+        cov = self.prior.noise_px ** 2 * inv if inv is not None else np.full((2, 2), np.inf)
         self._set_state(time_s, match.angles_rad, cov)
         return GazeSample(f, j, time_s, xy.copy(), center.copy(),
                           g[used], lights, float(rms), "ok", match.confidence[used].copy())
@@ -385,10 +386,10 @@ class Tracker:
             # (Σ_glints⁻¹ + Σ_prior⁻¹)⁻¹ from the fit's own JᵀJ, as posterior_covariance
             # builds it from the analytic one (glints that leave an angle undetermined add
             # nothing).
-            info = np.linalg.inv(cov)
-            if np.linalg.det(JtJ) > 1e-12 * JtJ[0, 0] * JtJ[1, 1]:
+            info = inverse_2x2(cov, 0.0)  # the prior's: positive definite
+            if inverse_2x2(JtJ) is not None:
                 info = info + JtJ / self.prior.noise_px ** 2
-            post = np.linalg.inv(info)
+            post = inverse_2x2(info, 0.0)
         else:
             prior = dict(prior_mean_rad=mean, prior_cov_rad2=cov, noise_px=self.prior.noise_px,
                          problems=self._problems)
@@ -477,7 +478,8 @@ class Tracker:
         """Whether no eye rotation :meth:`_implausible` accepts can put :data:`MIN_GLINTS`
         glints on the band's rows (:data:`OUT_OF_REACH`)."""
         recent = self._recent(time_s)
-        return recent is not None and self.matcher.band_capacity(rows, recent[0], recent[3]) < MIN_GLINTS
+        return recent is not None and \
+            self.matcher.band_capacity(rows, recent[0], recent[3]) < MIN_GLINTS
 
     def _glints(self, glints_px, lights) -> np.ndarray:
         out = np.full((1, self.n_lights, 2), np.nan)
@@ -494,5 +496,5 @@ class Tracker:
 
 #: Failures of a band's own identification, after which the band may still be identified with
 #: the prior (not a fit that failed on identified glints: those glints were the trouble).
-_IDENTITY_FAILURES = frozenset({OUT_OF_REACH, "match_too_few_glints", "match_ambiguous", "match_no_hypothesis",
-                                "match_fit_failed", "too_few_glints"})
+_IDENTITY_FAILURES = frozenset({OUT_OF_REACH, "match_too_few_glints", "match_ambiguous",
+                                "match_no_hypothesis", "match_fit_failed", "too_few_glints"})

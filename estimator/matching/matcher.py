@@ -56,7 +56,7 @@ import estimator.matching.kernels as kernels
 from ..calibration import Calibration
 from ..cornea import FitProblem
 from ..eye import fick_angles, gaze_direction
-from ..geometry import camera_arrays, glints_and_rows_one_pose, glints_one_pose, project_glints
+from ..geometry import camera_arrays, compiled, glints_and_rows_one_pose, glints_one_pose, project_glints
 from ..setup import Setup
 from .model import _Hypothesis, _Prior, calibrated_eye
 from .params import (
@@ -163,12 +163,24 @@ class GlintMatcher(HypothesisSearch):
         to ~1e-12 px and the same visibility as :meth:`predict`); gaze_direction and
         Eye.cornea_center of one rotation without numpy's per-call cost."""
         eye = self.eye
-        cp = math.cos(pitch)
-        axis = np.array([cp * math.sin(yaw), math.sin(pitch), -cp * math.cos(yaw)])
-        center = eye.rotation_center_m + eye.cornea_offset_m * axis
+        center, axis = self._orbit_pose(yaw, pitch)
+        if compiled.ENABLED:  # the kernel itself: glints_one_pose's checks cost half the call
+            n = self.lights_world_m.shape[0]
+            g, vis = np.empty((n, 2)), np.empty(n, dtype=np.bool_)
+            compiled.glints_kernel(*self.arrays, center, eye.cornea_radius_m, self.lights_world_m,
+                                   axis, eye.cap_cos_min, True, g, vis, False,
+                                   compiled.NO_JACOBIAN)
+            return g, vis
         return glints_one_pose(self.setup.camera, center, eye.cornea_radius_m,
                                self.lights_world_m, cornea_axis=axis,
                                cap_cos_min=eye.cap_cos_min, arrays=self.arrays)
+
+    def _orbit_pose(self, yaw: float, pitch: float):
+        """Cornea centre (3,) and optical axis (3,) of one rotation on the orbit
+        (Eye.cornea_center and gaze_direction without numpy's per-call cost)."""
+        cp = math.cos(pitch)
+        axis = np.array([cp * math.sin(yaw), math.sin(pitch), -cp * math.cos(yaw)])
+        return self.eye.rotation_center_m + self.eye.cornea_offset_m * axis, axis
 
     def _predict_one_rows(self, yaw: float, pitch: float):
         """:meth:`_predict_one` and d glint / d (yaw, pitch) (n, 2, 2) (px per rad) in closed
@@ -210,7 +222,7 @@ class GlintMatcher(HypothesisSearch):
     def _angles_center(self, x):
         eye = self.eye
         if self.params.model == "orbit":
-            return np.asarray(x, dtype=np.float64), eye.cornea_center(x[0], x[1])
+            return np.asarray(x, dtype=np.float64), self._orbit_pose(float(x[0]), float(x[1]))[0]
         yaw, pitch = fick_angles(x - eye.rotation_center_m)
         return np.array([float(yaw), float(pitch)]), np.asarray(x, dtype=np.float64)
 

@@ -8,7 +8,8 @@ import pytest
 
 from estimator.cornea import fit_cornea, fit_small
 from estimator.gaze import calibrated_problems
-from estimator.geometry import camera_arrays, glints_one_pose, project_glints
+from estimator.geometry import (camera_arrays, glint_jacobians, glints_and_rows_one_pose,
+                                glints_one_pose, project_glints)
 from estimator.matching import BandFollower, GlintMatcher
 from estimator.tracker import Tracker
 from tests.estimator.test_tracker import calibration, draw_frame, setup  # noqa: F401 fixtures
@@ -29,6 +30,62 @@ def test_the_projection_of_one_pose_is_project_glints(setup):
         assert np.array_equal(f, np.isfinite(g1[:, 0]))
         # The same arithmetic one light at a time: rounding differences only (1e-9 px).
         assert np.abs(g0[f] - g1[f]).max(initial=0.0) < 1e-9
+
+
+def test_the_compiled_rows_are_the_closed_form_jacobian(setup, calibration):  # noqa: F811
+    """d glint / d centre of the compiled projection is glint_jacobians' (1e-12 relative: the
+    same closed form, rounding only) and the central differences of the glints (1e-6 relative:
+    the differences' own truncation at 1 um); the matcher's d glint / d (yaw, pitch) through
+    the orbit is the central differences of its own predictions (1e-6 relative)."""
+    rng = np.random.default_rng(6)
+    eye = setup.eye
+    for yaw, pitch in rng.uniform(-0.5, 0.5, (30, 2)):
+        c = eye.cornea_center(yaw, pitch)
+        g, vis, J = glints_and_rows_one_pose(setup.camera, c, eye.cornea_radius_m,
+                                             setup.lights_world_m)
+        g0, v0, J0, _, _ = glint_jacobians(setup.camera, c, eye.cornea_radius_m,
+                                           setup.lights_world_m, radius_and_lights=False)
+        m = vis & v0
+        scale = np.abs(J0[m]).max()
+        assert np.abs(J[m] - J0[m]).max() < 1e-12 * scale
+        h = 1e-6  # m
+        fd = np.stack([(glints_one_pose(setup.camera, c + h * e, eye.cornea_radius_m,
+                                        setup.lights_world_m)[0]
+                        - glints_one_pose(setup.camera, c - h * e, eye.cornea_radius_m,
+                                          setup.lights_world_m)[0]) / (2 * h)
+                       for e in np.eye(3)], axis=-1)
+        assert np.abs(J[m] - fd[m]).max() < 1e-6 * scale
+    m = GlintMatcher(setup, calibration=calibration)
+    for yaw, pitch in rng.uniform(-0.4, 0.4, (10, 2)):
+        g, vis, J = m._predict_one_rows(yaw, pitch)
+        h = 1e-6  # rad
+        fd = np.stack([(m._predict_one(yaw + dy, pitch + dp)[0]
+                        - m._predict_one(yaw - dy, pitch - dp)[0]) / (2 * h)
+                       for dy, dp in ((h, 0.0), (0.0, h))], axis=-1)
+        assert np.abs(J[vis] - fd[vis]).max() < 1e-6 * np.abs(J[vis]).max()
+
+
+def test_the_closed_form_2x2_inverse_and_prior_growth():
+    """inverse_2x2 is np.linalg.inv (1e-12 relative) on positive definite matrices and None on
+    singular ones; BandPrior.predict's closed-form largest eigenvalue decides as eigvalsh does
+    on 2,000 random covariances around its 0.75 deg limit."""
+    from estimator.samples import BandPrior, inverse_2x2
+
+    rng = np.random.default_rng(9)
+    for _ in range(200):
+        L = rng.normal(size=(2, 2))
+        A = L @ L.T + 0.1 * np.eye(2)
+        assert np.allclose(inverse_2x2(A), np.linalg.inv(A), rtol=1e-12, atol=0)
+    assert inverse_2x2(np.array([[1.0, 2.0], [2.0, 4.0]])) is None
+    prior = BandPrior()
+    limit = np.radians(prior.max_sd_deg) ** 2
+    for _ in range(2000):
+        L = rng.normal(size=(2, 2)) * np.sqrt(limit) * 0.6
+        cov = L @ L.T
+        dt = rng.uniform(0, 1.2e-3)
+        grown = cov + (np.radians(prior.eye_speed_max_deg_s) * dt) ** 2 * np.eye(2)
+        want = np.linalg.eigvalsh(grown)[-1] <= limit
+        assert (prior.predict(cov, dt) is not None) == want
 
 
 @pytest.mark.parametrize("model", ["orbit", "center"])
