@@ -272,3 +272,29 @@ def test_lashes_cut_glints_in_down_gaze(occluder):
     occ = occluder.glints(0.0, -0.25, 0.0)
     assert occ.cut[0].sum() >= 3 and np.all(occ.occluder[0][occ.cut[0]] == 2)
     assert not (occ.occluder[0] == 1).any()
+
+
+def test_dataset_labels_say_what_hides_each_glint(mi, paper_text, tmp_path):
+    """A 160x120 dataset of a blinking, lashed eye: its labels carry the lid closure and each
+    glint's occluder, and a glint a lid hides is not visible; a lidless run writes none."""
+    from scet_render.dataset import dataset_trajectory, iter_labels, render_dataset
+
+    text = paper_text + LIDS + "blink_rate_per_min = 60\n"
+    setup = _small(parse_scene(text, "lids.toml"))
+    traj = dataset_trajectory(setup, "fixations", 60, seed=2)
+    assert traj.blinks is not None and traj.blinks.start_s.size >= 1
+    onset = traj.blinks.start_s[0]
+    frame = int(onset // setup.sensor.frame_period_s) + 3  # the lid well on its way down
+    render_dataset(setup, tmp_path / "d", frames=frame + 1, spp=1, seed=2, cornea="conductor",
+                   scene_text=text)
+    labels = [lab for lab in iter_labels(tmp_path / "d") if lab.frame == frame]
+    assert labels and all(lab.lid_closure > 0 for lab in labels)
+    assert any(np.any(lab.glints_blocked_fraction >= 1.0) for lab in labels)
+    for lab in labels:
+        hidden = lab.glints_blocked_fraction >= 1.0
+        assert len(lab.glints_occluder) == lab.glints_px.shape[0]
+        assert not np.any(lab.glints_visible & hidden)
+    plain = render_dataset(setup, tmp_path / "e", frames=1, spp=1, seed=2, cornea="conductor",
+                           scene_text=text, eyelid_openness=None)
+    first = next(iter_labels(plain.path))
+    assert first.glints_occluder is None and first.lid_closure == 0.0
