@@ -114,7 +114,8 @@ class Eyelids:
         c = np.asarray(closure, dtype=np.float64)
         upper = self.upper_margin_rad + self.upper_gain * p
         lower = self.lower_margin_rad + self.lower_gain * p
-        return upper - c * (upper - lower), lower + 0.0 * c
+        upper, lower, c = np.broadcast_arrays(upper, lower, c)
+        return upper - c * (upper - lower), lower.copy()
 
 
 def cornea_angular_radius(eye: Eye) -> float:

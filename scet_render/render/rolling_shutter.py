@@ -234,7 +234,8 @@ class BandedRenderer:
         Corneal material (:class:`scet_render.render.scene.SceneOptions`).
     eyelid_openness : float or None
         1 = fully open (the cornea is never covered for gazes at the screen), 0 = closed,
-        None = no eyelids.
+        None = no eyelids. A Setup with ``eyelids`` (lids that follow the eye, and blink with
+        the trajectory's ``blinks``) renders those instead, at any value but None.
     ambient : float
         Ambient environment radiance (W sr^-1 m^-2), 0 for none.
     seed : int

@@ -17,8 +17,10 @@ Geometry (SI units, world frame of the SCET paper's Fig. 3, eye in primary posit
   disk 20 µm in front of it), seen through the cornea;
 * **eyelids** (optional, static meshes): two pieces of a shell around the eye above and below
   elevation bands that ``eyelid_openness`` narrows; at 1 they clear the cornea, with 5 degrees
-  to spare, for every gaze at the screen. **Skin**: a shell with a round opening around them,
-  and a plane (the face) behind;
+  to spare, for every gaze at the screen. A Setup with ``eyelids`` gets lids that follow the
+  eye's pitch, blink and carry lashes instead: meshes in shapegroups whose instances move
+  (:mod:`~scet_render.render.lids`). **Skin**: a shell with a round opening around them, and a
+  plane (the face) behind;
 * **lights**: one small spherical area emitter per light (``LightGroup.source_radius_m``); a
   point light would be invisible in a mirror. **Ambient**: a constant near-IR environment;
 * **camera**: a perspective sensor with the Setup's intrinsics (:func:`sensor_dict` is the one

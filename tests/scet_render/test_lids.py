@@ -4,8 +4,10 @@ Geometry, scene keys and blink kinematics are tested without Mitsuba; the render
 640x480 at 2-8 spp, conductor cornea: exact glints at low spp) skip without it.
 """
 
+import dataclasses
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -35,8 +37,12 @@ from scet_render.render import (
     moving_lid_meshes,
 )
 from scet_render.simulate import ground_truth_glints
-from tests.scet_render.test_rolling_shutter import _saccade, _saccade_frame, _small, \
-    assert_frame_compiles_nothing
+from tests.scet_render.test_rolling_shutter import (
+    _saccade,
+    _saccade_frame,
+    _small,
+    assert_frame_compiles_nothing,
+)
 
 
 @dataclass(frozen=True)
@@ -57,8 +63,6 @@ LIDS = "\n[eyelids]\nlash_count = 40\n"
 
 @pytest.fixture(scope="module")
 def paper_text():
-    from pathlib import Path
-
     return (Path(__file__).resolve().parents[2] / "scenes" / "paper_sim.toml").read_text()
 
 
@@ -153,8 +157,6 @@ def test_lashes_are_seeded(lidded):
     layout = eye_layout(lidded)
     a, b = lash_mesh(lidded, layout, lidded.eyelids), lash_mesh(lidded, layout, lidded.eyelids)
     assert a.vertices.tobytes() == b.vertices.tobytes() and len(a.faces) > 40 * 10
-    import dataclasses
-
     other = lash_mesh(lidded, layout, dataclasses.replace(lidded.eyelids, lash_seed=1))
     assert other.vertices.tobytes() != a.vertices.tobytes()
 
