@@ -108,6 +108,19 @@ def test_bad_eyelid_keys_raise_scene_error_naming_the_key(paper_text, lines, key
     assert f"'{key}'" in str(info.value) and "bad.toml" in str(info.value)
 
 
+def test_scet_scene_describes_the_lids_and_refuses_bad_ones(paper_text, tmp_path, capsys):
+    from scet_render.cli import main
+
+    good, bad = tmp_path / "good.toml", tmp_path / "bad.toml"
+    good.write_text(paper_text + LIDS + "blink_rate_per_min = 20\n")
+    bad.write_text(paper_text + "\n[eyelids]\nblink_rate_per_min = 90\n")
+    assert main(["scene", str(good)]) == 0
+    assert "0.9 x pitch" in capsys.readouterr().out
+    assert main(["scene", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "'eyelids.blink_rate_per_min'" in err[0] and "bad.toml" in err[0]
+
+
 def test_a_blink_rate_above_the_physiological_maximum_is_refused_by_the_model():
     with pytest.raises(ValueError, match="rate_per_min"):
         blink_schedule(10.0, MAX_BLINK_RATE_PER_MIN + 1, 0)
