@@ -13,7 +13,9 @@ by its label: clear (no path blocked), cut by a lash, cut by a lid (0 < blocked 
 The same poses rendered without lids give each glint's unoccluded flux and spot shape. Printed:
 per class the count, the centroid error against the closed form (px), the flux ratio to the
 unoccluded glint, and the spot's elongation (sqrt of the eigenvalue ratio of its intensity-
-weighted second moments), with what a flag on each would catch. Usage:
+weighted second moments), the flux against the mean of the two neighbouring lights' glints in
+the same band (what a tracker that knows identities can compute), with what a flag on each
+would catch. Usage:
 
     python benchmarks/bench_lids.py [--spp 16] [--frames 12] [--cost-spp 4] [--skip-cost]
 """
@@ -121,6 +123,7 @@ def cut_glints(spp: int, frames: int) -> None:
             imgs.append(sensor.apply(rad, np.random.SeedSequence([3, f])).astype(np.float64))
         det = detect_glints(imgs[0], lidded, f)
         by_strobe = {lab["strobe"]: lab for lab in labels}
+        first = len(rows)
         for k in range(len(det)):
             lab = by_strobe.get(int(det.strobe_index[k]))
             if lab is None:
@@ -136,8 +139,17 @@ def cut_glints(spp: int, frames: int) -> None:
             flux0, elong0 = _spot(imgs[1], *g[i])
             same = det.strobe_index == det.strobe_index[k]
             band = det.intensity[k] / np.median(det.intensity[same]) if same.sum() >= 5 else np.nan
-            rows.append((cls, d[i], flux / flux0 if flux0 > 0 else np.nan, elong, elong0, band,
-                         det.area_px[k]))
+            rows.append([cls, d[i], flux / flux0 if flux0 > 0 else np.nan, elong, elong0, band,
+                         det.area_px[k], int(det.strobe_index[k]), i, det.intensity[k], np.nan])
+        # The tracker-side expectation: the mean flux of the glints of the two neighbouring
+        # lights on the arc, detected in the same band (identities known from the matcher).
+        mine = rows[first:]
+        flux_of = {(x[7], x[8]): x[9] for x in mine}
+        for x in mine:
+            nb = [flux_of.get((x[7], x[8] + s)) for s in (-1, 1)]
+            nb = [v for v in nb if v is not None]
+            if len(nb) == 2:
+                x[10] = x[9] / np.mean(nb)
     print(f"\n{len(picked[:frames])} frames, {spp} spp, {len(rows)} detections matched")
     print(f"{'class':12s} {'n':>4s} {'err med':>8s} {'err p90':>8s} {'err max':>8s} "
           f"{'flux/unocc med':>15s} {'elong med':>10s} {'elong/unocc med':>16s} "
@@ -160,6 +172,19 @@ def cut_glints(spp: int, frames: int) -> None:
     cut = np.array([x[0].startswith("cut") for x in rows])
     clear = np.array([x[0] == "clear" for x in rows])
     band = np.array([x[5] for x in rows])
+    neighbours = np.array([x[10] for x in rows])
+    has = np.isfinite(neighbours)
+    print(f"flux / mean of the two neighbouring lights' glints (same band): clear "
+          f"{np.percentile(neighbours[clear & has], [5, 50, 95]).round(2).tolist()} (p5, p50, p95; "
+          f"{int((clear & has).sum())} with both neighbours), cut "
+          f"{np.percentile(neighbours[cut & has], [5, 50, 95]).round(2).tolist()} "
+          f"({int((cut & has).sum())})")
+    for thr in (0.6, 0.7, 0.8):
+        flag = has & (neighbours < thr)
+        print(f"flag flux/neighbours < {thr:.1f}: {int((flag & cut).sum())} of "
+              f"{int((cut & has).sum())} cut, {int((flag & clear).sum())} of "
+              f"{int((clear & has).sum())} clear; unflagged cut glints: max error "
+              f"{e[~flag & cut & has].max() if (~flag & cut & has).any() else np.nan:.2f} px")
     for thr in (0.5, 0.7, 0.8, 0.9):
         flag = band < thr
         print(f"flag flux/band median < {thr:.1f}: {int((flag & cut).sum())} of {int(cut.sum())} "
