@@ -27,6 +27,7 @@ from .eye import (
     BOHME_LIMBUS_DEPTH_M,
     Eye,
 )
+from .eyelids import read_eyelids
 from .geometry import Camera, RigidPose, look_at_rotation, rotation_from_vector, rotation_matrix
 from .setup import DistanceSensor, LightGroup, LightRig, Screen, Sensor, Setup, Strobe
 
@@ -232,9 +233,12 @@ def parse_scene(text: str, source: str = "<string>") -> Setup:
     ds_table = top.table("distance_sensor", required=False)
     distance = _read_distance(ds_table) if ds_table is not None else None
     lights = _read_lights(top, eye)
+    lid_table = top.table("eyelids", required=False)
+    eyelids = read_eyelids(lid_table, eye, screen) if lid_table is not None else None
     top.finish()
     setup = Setup(name=name, camera=camera, sensor=sensor, eye=eye, lights=lights, strobe=strobe,
                   screen=screen, distance_sensor=distance, description=description, source=source,
+                  eyelids=eyelids,
                   source_sha256=hashlib.sha256(text.encode("utf-8")).hexdigest())
     _check_geometry(setup, top)
     return setup

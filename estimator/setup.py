@@ -158,6 +158,9 @@ class Setup:
     description: str = ""
     source: str = ""
     source_sha256: str = ""
+    #: Lids that follow the eye (:class:`estimator.eyelids.Eyelids`, the scene's ``[eyelids]``
+    #: table); None: the renderer's static lids.
+    eyelids: Eyelids | None = None
 
     @property
     def lights_world_m(self) -> np.ndarray:

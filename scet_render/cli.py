@@ -32,7 +32,15 @@ def _describe(setup) -> str:
             f"  sensor S = {sen.total_lines}, N = {sen.visible_lines}, frame {sen.frame_period_s * 1e3:g} ms, "
             f"exposure {sen.exposure_s * 1e6:g} us\n"
             f"  strobe {st.pulses_per_frame} pulses/frame of {st.pulse_s * 1e6:g} us every "
-            f"{st.period_s * 1e6:g} us, phase {st.phase_s * 1e6:g} us")
+            f"{st.period_s * 1e6:g} us, phase {st.phase_s * 1e6:g} us"
+            + ("" if setup.eyelids is None else _describe_lids(setup.eyelids)))
+
+
+def _describe_lids(lids) -> str:
+    return (f"\n  eyelids follow the eye: upper margin {np.degrees(lids.upper_margin_rad):.2f} deg"
+            f" + {lids.upper_gain:g} x pitch, lower {np.degrees(lids.lower_margin_rad):.2f} deg + "
+            f"{lids.lower_gain:g} x pitch; {lids.blink_rate_per_min:g} blinks/min, "
+            f"{lids.lash_count} lashes")
 
 
 def cmd_scenes(args) -> int:

@@ -24,6 +24,7 @@ LAYERS = {
         {"errors", "checks", "formats"},
         {"geometry"},
         {"eye", "setup"},
+        {"eyelids"},
         {"scene", "banding", "metrics"},
         {"cornea"},
         {"calibration"},

@@ -34,6 +34,7 @@ PNG_COMPRESSION = 3
 _STREAM_TRAJECTORY = 0
 _STREAM_RENDER = 1
 _STREAM_SENSOR = 2
+_STREAM_BLINKS = 3
 
 
 class DatasetError(InputError):
@@ -79,6 +80,15 @@ class StrobeLabel:
     glints_px : (n, 2) float
         NaN where the file holds null.
     glints_visible : (n,) bool
+        For scenes with moving lids (``[eyelids]``), False also where a lid or lash hides the
+        glint (:mod:`scet_render.render.occlusion`).
+    lid_closure : float
+        Upper lid closure of a blink at the strobe instant (moving lids; else 0).
+    glints_occluder : tuple of str, optional
+        Per light "none", "lid" or "lash": what blocks (part of) its glint; None for labels of
+        scenes without moving lids (and every label written before they existed).
+    glints_blocked_fraction : (n,) float, optional
+        Fraction of each glint's light paths blocked: 1 hidden, in (0, 1) cut.
     """
 
     frame: int
@@ -94,6 +104,9 @@ class StrobeLabel:
     cornea_center_m: np.ndarray
     glints_px: np.ndarray
     glints_visible: np.ndarray
+    lid_closure: float = 0.0
+    glints_occluder: tuple | None = None
+    glints_blocked_fraction: np.ndarray | None = None
 
 
 def _exr():

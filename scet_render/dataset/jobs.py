@@ -20,6 +20,7 @@ when its CPU cannot run that width; the CPU name and features are recorded besid
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -133,6 +134,9 @@ def prepare_dataset(setup: Setup, out_dir, *, frames: int, spp: int = 16,
     if variant is not None and not isinstance(variant, str):
         raise ValueError(f"variant must be a string or None, got {variant!r}")
     SceneOptions(eyelid_openness=eyelid_openness)  # checks it (ValueError) before any work
+    if eyelid_openness is None and setup.eyelids is not None:
+        # No lids rendered: none in the labels either (nothing hides a glint).
+        setup = dataclasses.replace(setup, eyelids=None)
     sensor = SensorModel.from_sensor(setup.sensor) if sensor is None else sensor
     if not isinstance(sensor, SensorModel):
         raise ValueError(f"sensor must be a SensorModel, got {type(sensor).__name__}")

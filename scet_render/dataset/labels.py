@@ -18,6 +18,7 @@ from estimator.inputs import MAX_FRAMES, MAX_FRAME_PX
 from estimator.setup import Setup
 
 from ..motion import Trajectory
+from ..render import OCCLUDER_NAMES, occluder_names
 from ..simulate import ground_truth_glints
 from .format import FORMAT, LABELS_NAME, VERSION, DatasetError, StrobeLabel, _floats
 from .manifest import read_manifest
@@ -57,6 +58,11 @@ def frame_labels(setup: Setup, trajectory: Trajectory, frame: int, bands=None) -
     yaw, pitch = trajectory.angles_at(time_s)
     target = trajectory.target_at(time_s)
     glints, visible, center = ground_truth_glints(setup, yaw, pitch)
+    lids = None
+    if setup.eyelids is not None:
+        closure = trajectory.lid_closure_at(time_s)
+        lids = _occluder(setup).glints(yaw, pitch, closure)
+        visible = visible & ~lids.hidden
     out = []
     for i, b in enumerate(bands):
         full_start, full_stop = min(b.full_rows[0], N), min(b.full_rows[1], N)
@@ -75,7 +81,27 @@ def frame_labels(setup: Setup, trajectory: Trajectory, frame: int, bands=None) -
             "glints_px": [_floats(g) if np.all(np.isfinite(g)) else None for g in glints[i]],
             "glints_visible": [bool(v) for v in visible[i]],
         })
+        if lids is not None:
+            out[-1].update({
+                "lid_closure": float(closure[i]),
+                "glints_occluder": occluder_names(lids.occluder[i]),
+                "glints_blocked_fraction": [float(f) for f in lids.blocked_fraction[i]],
+            })
     return out
+
+
+_OCCLUDERS: dict = {}
+
+
+def _occluder(setup: Setup):
+    """One :class:`~scet_render.render.occlusion.LidOccluder` per Setup (its Mitsuba scenes)."""
+    from ..render import LidOccluder
+
+    key = id(setup)
+    if key not in _OCCLUDERS or _OCCLUDERS[key][0] is not setup:
+        _OCCLUDERS.clear()
+        _OCCLUDERS[key] = (setup, LidOccluder(setup))
+    return _OCCLUDERS[key][1]
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,4 +223,17 @@ def _label(d: Doc) -> StrobeLabel:
         yaw_rad=d.number("yaw_rad", lo=-math.pi, hi=math.pi),
         pitch_rad=d.number("pitch_rad", lo=-math.pi, hi=math.pi),
         cornea_center_m=d.array("cornea_center_m", (3,), lo=-_POSITION_M, hi=_POSITION_M),
-        glints_px=glints, glints_visible=visible)
+        glints_px=glints, glints_visible=visible, **_lid_fields(d, glints.shape[0]))
+
+
+def _lid_fields(d: Doc, n: int) -> dict:
+    """The optional lid fields of a label (written for scenes with moving lids only)."""
+    if not d.has("glints_occluder"):
+        return {}
+    names = d.data["glints_occluder"]
+    if not (isinstance(names, list) and len(names) == n
+            and all(isinstance(x, str) and x in OCCLUDER_NAMES for x in names)):
+        raise d.error("glints_occluder", f"expected {n} names from {list(OCCLUDER_NAMES)}")
+    fraction = d.array("glints_blocked_fraction", (n,), lo=0.0, hi=1.0)
+    return {"lid_closure": d.number("lid_closure", lo=0.0, hi=1.0),
+            "glints_occluder": tuple(names), "glints_blocked_fraction": fraction}

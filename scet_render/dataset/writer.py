@@ -67,9 +67,17 @@ from estimator.banding import strobe_instant
 from estimator.formats import atomic_file, atomic_write, frame_name
 from estimator.setup import Setup
 
-from ..motion import FixationalNoise, Trajectory, fixation_sequence, saccade_sequence
+from ..motion import (
+    FixationalNoise,
+    Trajectory,
+    blink_schedule,
+    fixation_sequence,
+    saccade_sequence,
+    with_blinks,
+)
 from ..render import SensorModel
 from .format import (
+    _STREAM_BLINKS,
     _STREAM_RENDER,
     _STREAM_SENSOR,
     _STREAM_TRAJECTORY,
@@ -125,13 +133,20 @@ def dataset_trajectory(setup: Setup, kind: str, frames: int, seed: int) -> Traje
         (x0, x1), (y0, y1) = screen.x_range_m, screen.y_range_m
         targets = np.stack([gen.uniform(x0, x1, n), gen.uniform(y0, y1, n),
                             np.full(n, screen.z_m)], axis=-1)
-        return saccade_sequence(eye, targets, gen, SACCADE_FIXATION_RANGE_S, noise=noise)
-    n = math.ceil(needed_s / FIXATION_S) + 1
-    if kind == "fixations":
-        order = np.concatenate([gen.permutation(len(grid)) for _ in range(-(-n // len(grid)))])
+        traj = saccade_sequence(eye, targets, gen, SACCADE_FIXATION_RANGE_S, noise=noise)
     else:
-        order = np.arange(n) % len(grid)
-    return fixation_sequence(eye, grid[order[:n]], FIXATION_S, gen, noise=noise)
+        n = math.ceil(needed_s / FIXATION_S) + 1
+        if kind == "fixations":
+            order = np.concatenate([gen.permutation(len(grid))
+                                    for _ in range(-(-n // len(grid)))])
+        else:
+            order = np.arange(n) % len(grid)
+        traj = fixation_sequence(eye, grid[order[:n]], FIXATION_S, gen, noise=noise)
+    if setup.eyelids is not None and setup.eyelids.blink_rate_per_min > 0:
+        blinks = np.random.default_rng(np.random.SeedSequence([seed, _STREAM_BLINKS]))
+        traj = with_blinks(traj, blink_schedule(traj.duration_s,
+                                                setup.eyelids.blink_rate_per_min, blinks))
+    return traj
 
 
 # --------------------------------------------------------------------------- writing

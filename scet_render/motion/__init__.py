@@ -1,8 +1,9 @@
-"""Eye motion over time: ``saccades`` (main sequence, fixational noise),
-``trajectory`` (:class:`Trajectory`, the pose at any instant), ``sequences`` (fixations,
-saccades, pursuit).
+"""Eye motion over time: ``saccades`` (main sequence, fixational noise), ``blinks`` (the
+upper lid's closure over time), ``trajectory`` (:class:`Trajectory`, the pose and lid closure
+at any instant), ``sequences`` (fixations, saccades, pursuit).
 """
 
+from .blinks import BLINK_DURATION_RANGE_S, BlinkModel, Blinks, blink_schedule
 from .saccades import (
     BALOH_C_DEG,
     BALOH_V_MAX_DEG_S,
@@ -13,11 +14,12 @@ from .saccades import (
     main_sequence,
 )
 from .sequences import concatenate, fixation_sequence, grid_sequence, pursuit, saccade_sequence
-from .trajectory import NOISE_COMPONENTS, SAME_DIRECTION_RAD, SegmentKind, Trajectory
+from .trajectory import NOISE_COMPONENTS, SAME_DIRECTION_RAD, SegmentKind, Trajectory, with_blinks
 
 __all__ = [
     "CARPENTER_SLOPE_S_PER_DEG", "CARPENTER_INTERCEPT_S", "BALOH_V_MAX_DEG_S", "BALOH_C_DEG",
     "main_sequence", "SaccadeModel", "FixationalNoise", "fixation_sequence", "saccade_sequence",
     "grid_sequence", "pursuit", "concatenate", "SAME_DIRECTION_RAD", "NOISE_COMPONENTS",
-    "SegmentKind", "Trajectory"
+    "SegmentKind", "Trajectory", "BLINK_DURATION_RANGE_S", "BlinkModel", "Blinks",
+    "blink_schedule", "with_blinks"
 ]

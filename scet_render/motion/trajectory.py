@@ -41,12 +41,15 @@ in visual perception. *Nature Reviews Neuroscience* 5, 229-240.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from enum import IntEnum
 
 import numpy as np
 
 from estimator.eye import fick_angles, gaze_direction
+
+from .blinks import Blinks
 
 #: Two gaze directions closer than this are the same: no saccade is inserted between them.
 SAME_DIRECTION_RAD = 1e-9
@@ -94,6 +97,9 @@ class Trajectory:
         Fixational noise sinusoids per segment and axis (yaw, pitch); zeros for none.
     start_s : (n,) float
         Segment start times (derived).
+    blinks : Blinks, optional
+        Blinks of the upper lid over the same time axis (:mod:`scet_render.motion.blinks`);
+        None: the lids never blink. :func:`with_blinks` adds them to a trajectory.
     """
 
     kind: np.ndarray
@@ -109,6 +115,7 @@ class Trajectory:
     noise_frequency_hz: np.ndarray | None = None
     noise_phase_rad: np.ndarray | None = None
     start_s: np.ndarray = field(init=False, repr=False)
+    blinks: Blinks | None = None
 
     def __post_init__(self):
         kind = np.asarray(self.kind)
@@ -201,6 +208,11 @@ class Trajectory:
             pitch[noisy] += offset[:, 1]
         return yaw, pitch
 
+    def lid_closure_at(self, t_s) -> np.ndarray:
+        """(...) upper lid closure of the blinks (0 open .. 1 shut) at times ``t_s``."""
+        t = np.clip(np.asarray(t_s, dtype=np.float64), 0.0, self.duration_s)
+        return np.zeros(t.shape) if self.blinks is None else self.blinks.closure_at(t)
+
     def direction_at(self, t_s) -> np.ndarray:
         """(..., 3) unit gaze directions (optical axis, world frame) at times ``t_s``."""
         return gaze_direction(*self.angles_at(t_s))
@@ -275,6 +287,11 @@ class Trajectory:
         slope = (np.sum(amp * np.sin(omega * duration[..., None] + phase), axis=1) - s0) / duration
         # Bridge: pinned to zero at tau = 0 and tau = T.
         return s - s0 - tau[:, None] * slope, ds - slope
+
+
+def with_blinks(trajectory: Trajectory, blinks: Blinks | None) -> Trajectory:
+    """The trajectory with the upper lid blinking as ``blinks`` says (None: no blinks)."""
+    return dataclasses.replace(trajectory, blinks=blinks)
 
 
 # -- profile ---------------------------------------------------------------------------------

@@ -1,5 +1,6 @@
 """Physically based renders with Mitsuba 3: the variant (``backend``), the eye scene
-(``scene``, ``meshes``, ``export``), the rolling-shutter strobe renderer (``rolling_shutter``)
+(``scene``, ``meshes``, ``export``), lids that follow the eye and their occlusion of glints
+(``lids``, ``occlusion``), the rolling-shutter strobe renderer (``rolling_shutter``)
 and the OV5647 sensor model (``sensor``). Mitsuba is imported lazily.
 """
 
@@ -38,7 +39,19 @@ from .layout import (
     SceneOptions,
     eye_layout,
 )
+from .lids import (
+    CLOSED_OVERLAP_RAD,
+    LASH_ALBEDO,
+    LID_MOVING_KEYS,
+    UPPER_LID_GAP_M,
+    lash_mesh,
+    lid_rotations_rad,
+    lid_transforms,
+    lid_transforms_m,
+    moving_lid_meshes,
+)
 from .meshes import cornea_mesh, cornea_opacity, eye_part_transforms, eyelid_meshes, sclera_opacity, skin_mesh
+from .occlusion import OCCLUDER_NAMES, SPOT_SAMPLES, GlintOcclusion, LidOccluder, occluder_names
 from .rolling_shutter import (
     SPEED_SAMPLES_PER_PERIOD,
     BandedRenderer,
@@ -47,7 +60,7 @@ from .rolling_shutter import (
     motion_instants,
     plan_frame,
 )
-from .scene import EyeScene, SceneDescription, describe_scene, sensor_dict
+from .scene import EyeScene, SceneDescription, describe_scene, mitsuba_mesh, sensor_dict
 from .sensor import (
     CORNEA_FRESNEL_REFLECTANCE,
     DEFAULT_ELECTRONS_PER_RADIANCE,
@@ -77,5 +90,8 @@ __all__ = [
     "REFERENCE_EMITTER_RADIANCE", "GLINT_SATURATION_FRACTION", "OV5647_FULL_WELL_E",
     "OV5647_READ_NOISE_E", "OV5647_DARK_CURRENT_E_PER_S", "OV5647_CONVERSION_GAIN_E_PER_DN",
     "OV5647_BLACK_LEVEL_DN", "OV5647_ADC_BIT_DEPTH", "OV5647_SATURATION_E",
-    "DEFAULT_ELECTRONS_PER_RADIANCE", "SensorModel"
+    "DEFAULT_ELECTRONS_PER_RADIANCE", "SensorModel", "UPPER_LID_GAP_M", "CLOSED_OVERLAP_RAD",
+    "LASH_ALBEDO", "LID_MOVING_KEYS", "moving_lid_meshes", "lash_mesh", "lid_rotations_rad",
+    "lid_transforms", "lid_transforms_m", "OCCLUDER_NAMES", "SPOT_SAMPLES", "GlintOcclusion",
+    "LidOccluder", "occluder_names", "mitsuba_mesh"
 ]

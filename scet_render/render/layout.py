@@ -51,7 +51,11 @@ MOVING_KEYS = ("cornea.to_world", "sclera.to_world", "iris.to_world", "pupil.to_
 
 @dataclass(frozen=True, slots=True)
 class SceneOptions:
-    """Materials, lighting and geometry choices of a rendered scene (albedos are near-IR)."""
+    """Materials, lighting and geometry choices of a rendered scene (albedos are near-IR).
+
+    ``eyelid_openness`` sets the static lids; a Setup with ``eyelids`` (the scene's
+    ``[eyelids]`` table) gets lids that follow the eye instead, unless it is None (no lids).
+    """
 
     cornea: str = "dielectric"
     cornea_geometry: str = "sphere"

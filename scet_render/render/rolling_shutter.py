@@ -64,6 +64,8 @@ class FrameRender:
         Eye pose at each pulse.
     ambient_times_s : (M,) float
         Every instant the ambient light was sampled at (strobe instants included).
+    lid_closure : (P,) float
+        Upper lid closure of the trajectory's blinks at each pulse (zeros without blinks).
     """
 
     radiance: np.ndarray
@@ -74,6 +76,7 @@ class FrameRender:
     yaw_rad: np.ndarray
     pitch_rad: np.ndarray
     ambient_times_s: np.ndarray
+    lid_closure: np.ndarray | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -231,7 +234,8 @@ class BandedRenderer:
         Corneal material (:class:`scet_render.render.scene.SceneOptions`).
     eyelid_openness : float or None
         1 = fully open (the cornea is never covered for gazes at the screen), 0 = closed,
-        None = no eyelids.
+        None = no eyelids. A Setup with ``eyelids`` (lids that follow the eye, and blink with
+        the trajectory's ``blinks``) renders those instead, at any value but None.
     ambient : float
         Ambient environment radiance (W sr^-1 m^-2), 0 for none.
     seed : int
@@ -334,8 +338,9 @@ class BandedRenderer:
 
     def render_rows(self, yaw_rad: float, pitch_rad: float, row_start: int = 0,
                     row_stop: int | None = None, *, spp: int | None = None,
-                    seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
-        """Strobe-lit and ambient radiance of image rows [row_start, row_stop) at one eye pose.
+                    seed: int = 0, closure: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Strobe-lit and ambient radiance of image rows [row_start, row_stop) at one eye pose
+        (and upper lid ``closure``, for lids that follow the eye: :meth:`EyeScene.set_pose`).
 
         Returns
         -------
@@ -353,14 +358,15 @@ class BandedRenderer:
             raise ValueError(f"seed must be an integer in [0, 2**32), got {seed!r}")
         if spp is not None and (not isinstance(spp, (int, np.integer)) or spp < 1):
             raise ValueError(f"spp must be an integer >= 1, got {spp!r}")
-        self.eye_scene.set_pose(yaw_rad, pitch_rad)
+        self.eye_scene.set_pose(yaw_rad, pitch_rad, closure)
         img = self._render_rows_now(int(row_start), int(row_stop), int(spp or self.spp),
                                    int(seed))
         return img[..., 0], img[..., 1]
 
-    def render_global(self, yaw_rad: float, pitch_rad: float, *, seed: int = 0) -> np.ndarray:
+    def render_global(self, yaw_rad: float, pitch_rad: float, *, seed: int = 0,
+                      closure: float = 0.0) -> np.ndarray:
         """(H, W) float32 global-shutter frame: one pulse and Δe of ambient, all rows at once."""
-        strobe, ambient = self.render_rows(yaw_rad, pitch_rad, seed=seed)
+        strobe, ambient = self.render_rows(yaw_rad, pitch_rad, seed=seed, closure=closure)
         ratio = self.setup.sensor.exposure_s / self.setup.strobe.pulse_s
         return (strobe + np.float32(ratio) * ambient).astype(np.float32)
 
@@ -376,6 +382,9 @@ class BandedRenderer:
         plan = self.plan(trajectory, frame_index)
         yaw, pitch = trajectory.angles_at(plan.times_s)
         yaw, pitch = np.atleast_1d(yaw), np.atleast_1d(pitch)
+        closure = getattr(trajectory, "lid_closure_at", None)
+        closure = (np.zeros(yaw.shape) if closure is None
+                   else np.atleast_1d(closure(plan.times_s)))
         H = self.setup.camera.height_px
         radiance = np.zeros((H, self.setup.camera.width_px))
         inv_pulse = 1.0 / self.setup.strobe.pulse_s
@@ -384,7 +393,7 @@ class BandedRenderer:
             col = int(plan.pulse_column[k])
             spp = self.spp if col >= 0 else self.ambient_spp
             seed = _slice_seed(self.seed, frame_index, k)
-            self.eye_scene.set_pose(yaw[k], pitch[k])
+            self.eye_scene.set_pose(yaw[k], pitch[k], closure[k])
             if full_frames:
                 img = self.mi.render(self.eye_scene.scene, spp=spp, seed=seed)
                 img = np.asarray(img, dtype=np.float32)[start:stop]
@@ -398,7 +407,7 @@ class BandedRenderer:
         order = np.argsort(plan.pulse_column[strobe_k])
         return FrameRender(radiance.astype(np.float32), plan.pulse_indices, plan.pulse_times_s,
                            plan.row_weights, int(frame_index), yaw[strobe_k][order],
-                           pitch[strobe_k][order], plan.times_s)
+                           pitch[strobe_k][order], plan.times_s, closure[strobe_k][order])
 
     def render_frame(self, trajectory, frame_index: int) -> FrameRender:
         """Render frame ``frame_index`` of an eye ``trajectory`` (``angles_at(t)``), band by band.

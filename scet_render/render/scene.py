@@ -17,8 +17,10 @@ Geometry (SI units, world frame of the SCET paper's Fig. 3, eye in primary posit
   disk 20 µm in front of it), seen through the cornea;
 * **eyelids** (optional, static meshes): two pieces of a shell around the eye above and below
   elevation bands that ``eyelid_openness`` narrows; at 1 they clear the cornea, with 5 degrees
-  to spare, for every gaze at the screen. **Skin**: a shell with a round opening around them,
-  and a plane (the face) behind;
+  to spare, for every gaze at the screen. A Setup with ``eyelids`` gets lids that follow the
+  eye's pitch, blink and carry lashes instead: meshes in shapegroups whose instances move
+  (:mod:`~scet_render.render.lids`). **Skin**: a shell with a round opening around them, and a
+  plane (the face) behind;
 * **lights**: one small spherical area emitter per light (``LightGroup.source_radius_m``); a
   point light would be invisible in a mirror. **Ambient**: a constant near-IR environment;
 * **camera**: a perspective sensor with the Setup's intrinsics (:func:`sensor_dict` is the one
@@ -59,6 +61,7 @@ from .layout import (
     SceneOptions,
     eye_layout,
 )
+from .lids import LASH_ALBEDO, LID_MOVING_KEYS, lash_mesh, lid_transforms, moving_lid_meshes
 from .meshes import (
     _GAZE_FRAME,
     _affine,
@@ -180,11 +183,14 @@ def describe_scene(setup: Setup, options: SceneOptions = SceneOptions(), *, spp:
                        "to_world": _to_scene_units(_affine(_GAZE_FRAME, face_at, (0.1, 0.1, 1.0))),
                        "bsdf": _diffuse(options.skin_albedo, twosided=True)}
     meshes = {"skin": skin_mesh(setup, layout)}
-    if options.eyelid_openness is not None:
+    lids = setup.eyelids if options.eyelid_openness is not None else None
+    if lids is None and options.eyelid_openness is not None:
         meshes["lid_upper"], meshes["lid_lower"] = eyelid_meshes(setup, layout)
     for name in meshes:
         objects[name] = {"type": "ply", "filename": f"meshes/{name}.ply", "face_normals": False,
                          "bsdf": _diffuse(options.skin_albedo, twosided=True)}
+    if lids is not None:
+        _moving_lids(setup, layout, lids, options, pitch_rad, objects, meshes)
     if options.cornea_geometry == "mesh":
         mesh = cornea_mesh(setup, options.cornea_edge_m)
         R = eye_rotation_matrix(yaw_rad, pitch_rad)
@@ -224,6 +230,28 @@ def describe_scene(setup: Setup, options: SceneOptions = SceneOptions(), *, spp:
     return SceneDescription(objects, meshes, textures, layout)
 
 
+def _moving_lids(setup, layout, lids, options, pitch_rad, objects, meshes) -> None:
+    """Add the lids that follow the eye (:mod:`~scet_render.render.lids`): each lid's meshes in a
+    shapegroup, placed by an instance whose ``to_world`` moves them (lashes with the upper)."""
+    skin = _diffuse(options.skin_albedo, twosided=True)
+    upper, lower = moving_lid_meshes(setup, layout, lids)
+    parts = {"lid_upper": {"lid_upper_surface": (upper, skin)},
+             "lid_lower": {"lid_lower_surface": (lower, skin)}}
+    lashes = lash_mesh(setup, layout, lids)
+    if lashes is not None:
+        parts["lid_upper"]["lashes"] = (lashes, _diffuse(LASH_ALBEDO, twosided=True))
+    T = lid_transforms(setup, lids, pitch_rad)
+    for lid, shapes in parts.items():
+        group = {"type": "shapegroup"}
+        for name, (mesh, bsdf) in shapes.items():
+            meshes[name] = mesh
+            group[name] = {"type": "ply", "filename": f"meshes/{name}.ply",
+                           "face_normals": False, "bsdf": bsdf}
+        objects[f"{lid}_shape"] = group
+        objects[lid] = {"type": "instance", "to_world": T[lid],
+                        "shapegroup": {"type": "ref", "id": f"{lid}_shape"}}
+
+
 # --------------------------------------------------------------------------- loading
 
 
@@ -239,19 +267,24 @@ def _to_mitsuba(value, mi, desc: SceneDescription, name: str = ""):
         rest = {k: v for k, v in value.items() if k != "filename"}
         return {**rest, "data": mi.TensorXf(np.ascontiguousarray(data[..., None]))}
     if kind == "ply":
-        m = desc.meshes[name]
-        props = mi.Properties()
-        props["bsdf"] = mi.load_dict(_to_mitsuba(value["bsdf"], mi, desc))
-        mesh = mi.Mesh(name, len(m.vertices), len(m.faces), props=props, has_vertex_normals=True)
-        p = mi.traverse(mesh)
-        # Buffer types differ between variants (Float vs ArrayXf): reuse the mesh's own.
-        for key, data, dtype in (("vertex_positions", m.vertices, np.float32),
-                                 ("faces", m.faces, np.uint32),
-                                 ("vertex_normals", m.vertex_normals, np.float32)):
-            p[key] = type(p[key])(np.asarray(data, dtype).ravel())
-        p.update()
-        return mesh
+        return mitsuba_mesh(mi, name, desc.meshes[name],
+                            mi.load_dict(_to_mitsuba(value["bsdf"], mi, desc)))
     return {k: _to_mitsuba(v, mi, desc, k) for k, v in value.items()}
+
+
+def mitsuba_mesh(mi, name: str, m, bsdf):
+    """A ``mi.Mesh`` with a trimesh mesh's vertices, faces and vertex normals, and a BSDF."""
+    props = mi.Properties()
+    props["bsdf"] = bsdf
+    mesh = mi.Mesh(name, len(m.vertices), len(m.faces), props=props, has_vertex_normals=True)
+    p = mi.traverse(mesh)
+    # Buffer types differ between variants (Float vs ArrayXf): reuse the mesh's own.
+    for key, data, dtype in (("vertex_positions", m.vertices, np.float32),
+                             ("faces", m.faces, np.uint32),
+                             ("vertex_normals", m.vertex_normals, np.float32)):
+        p[key] = type(p[key])(np.asarray(data, dtype).ravel())
+    p.update()
+    return mesh
 
 
 class EyeScene:
@@ -292,7 +325,7 @@ class EyeScene:
         self.sensor = self.scene.sensors()[0]
         self.integrator = self.scene.integrator()
         params = mi.traverse(self.scene)
-        params.keep([k for k in MOVING_KEYS if k in params])
+        params.keep([k for k in MOVING_KEYS + LID_MOVING_KEYS if k in params])
         self._params = params
         mesh = desc.meshes.get("cornea")
         self._center = setup.eye.rotation_center_m * SCENE_UNITS_PER_M
@@ -301,17 +334,28 @@ class EyeScene:
         # Write the primary pose once through set_pose, so that every pose's parameters come
         # from the same code path (the loaded ones differ in the last float32 bit).
         self.pose = (math.nan, math.nan)
+        self.closure = math.nan
+        self.moving_lids = setup.eyelids if options.eyelid_openness is not None else None
         self.set_pose(0.0, 0.0)
 
-    def set_pose(self, yaw_rad: float, pitch_rad: float) -> bool:
-        """Move cornea, sclera, iris and pupil to an eye pose; False when nothing changed."""
+    def set_pose(self, yaw_rad: float, pitch_rad: float, closure: float = 0.0) -> bool:
+        """Move cornea, sclera, iris and pupil to an eye pose, and the lids that follow the eye
+        (a Setup with ``eyelids``) to its pitch and a blink ``closure`` in [0, 1] (0: open);
+        False when nothing changed. Static lids ignore ``closure``."""
         pose = (float(yaw_rad), float(pitch_rad))
         if not all(math.isfinite(a) for a in pose):
             raise ValueError(f"eye pose must be finite, got {pose}")
-        if pose == self.pose:
+        closure = float(closure)
+        if not 0.0 <= closure <= 1.0:
+            raise ValueError(f"closure must lie in [0, 1], got {closure!r}")
+        if self.moving_lids is None:
+            closure = 0.0
+        if pose == self.pose and closure == self.closure:
             return False
         mi, p = self.mi, self._params
         T = eye_part_transforms(self.setup, self.layout, *pose, self.options.pupil_radius_m)
+        if self.moving_lids is not None:
+            T.update(lid_transforms(self.setup, self.moving_lids, pose[1], closure))
         for name, M in T.items():
             if f"{name}.to_world" in p:
                 p[f"{name}.to_world"] = mi.ScalarTransform4f(M)
@@ -323,5 +367,5 @@ class EyeScene:
                                                                      n @ R.T)):
                 p[key] = type(p[key])(np.asarray(data, np.float32).ravel())
         p.update()
-        self.pose = pose
+        self.pose, self.closure = pose, closure
         return True
