@@ -34,11 +34,13 @@ from .calibration import (
     MAPPING_TERMS,
     Calibration,
     calibrate_joint,
+    calibrate_joint_conic,
     calibration_warnings,
     fit_gaze_mapping,
 )
 from .capture import is_capture_folder
 from .checks import load_json
+from .cornea import check_conic
 from .formats import atomic_write
 from .gaze import fit_cornea_centers
 from .glints import NO_BAND, detect_glints
@@ -194,31 +196,44 @@ def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
     return cal_setup, CalibrationGlints(np.array(rows), np.array(used_targets), tuple(frames))
 
 
-def calibrate_from_folder(folder, setup: Setup) -> Calibration:
+def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere") -> Calibration:
     """Calibrate from a folder of single-pulse calibration frames (targets in labels.jsonl).
 
     Lighting pose, corneal radius, eye centre and orbit radius are fitted at once
     (:func:`estimator.calibration.calibrate_joint`, optical axis through the targets); the
     mappings from the fitted cornea centres: ``eq1_<m>`` (Eq. (1)) and ``quadratic_<m>``
     (minimum-norm where the orbit makes it rank deficient), m the number of frames used.
+    ``cornea_model="conic"`` calibrates the conic constant Q with the rest
+    (:func:`estimator.calibration.calibrate_joint_conic`) and records it in the file.
     """
+    check_conic(cornea_model, 0.0)
     cal_setup, cg = calibration_glints(folder, setup)
     return calibrate_from_glints(cal_setup, cg.glints_px, cg.targets_m,
-                                 frames_total=len(read_targets(folder)))
+                                 frames_total=len(read_targets(folder)), cornea_model=cornea_model)
 
 
 def calibrate_from_glints(setup: Setup, glints_px, targets_m, *,
-                          frames_total: int | None = None) -> Calibration:
+                          frames_total: int | None = None,
+                          cornea_model: str = "sphere") -> Calibration:
     """:func:`calibrate_from_folder` on identified glints: (m, n, 2) px (NaN: not seen) of
     ``setup``'s lights with the eye fixating (m, 3) ``targets_m`` (the feature-level
-    simulator's glints, or a folder's). ``frames_total``: the frames there were (default m)."""
+    simulator's glints, or a folder's). ``frames_total``: the frames there were (default m).
+    ``cornea_model``: ``"sphere"`` (the paper's) or ``"conic"`` (Q calibrated too)."""
+    check_conic(cornea_model, 0.0)
     glints_px = np.asarray(glints_px, dtype=np.float64)
     used = glints_px.shape[0]
     total = used if frames_total is None else int(frames_total)
     mask = np.isfinite(glints_px).all(axis=-1)
-    lighting, orbit = calibrate_joint(setup.camera, setup.lights_world_m, glints_px,
-                                      targets_m, mask, center0_m=setup.eye.cornea_center(0.0, 0.0))
-    cal = Calibration.from_fits(lighting, orbit)
+    center0 = setup.eye.cornea_center(0.0, 0.0)
+    if cornea_model == "conic":
+        lighting, orbit, q = calibrate_joint_conic(setup.camera, setup.lights_world_m, glints_px,
+                                                   targets_m, mask, center0_m=center0)
+        cal = replace(Calibration.from_fits(lighting, orbit), cornea_model="conic",
+                      cornea_asphericity=q)
+    else:
+        lighting, orbit = calibrate_joint(setup.camera, setup.lights_world_m, glints_px,
+                                          targets_m, mask, center0_m=center0)
+        cal = Calibration.from_fits(lighting, orbit)
     cal = cal.with_quality(
         rms_px=float(lighting.rms_px), frames_used=used, frames_total=total,
         warnings=calibration_warnings(lighting, orbit, frames_used=used, frames_total=total))

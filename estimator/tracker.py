@@ -326,6 +326,28 @@ class Tracker:
         match, orbit = got.match, got.fit
         used = match.matched
         lights = match.light_index[used]
+        if self.calibration.conic:
+            # The follower identifies on the sphere; the estimate is the conic's, from the
+            # follower's fit (the batched fits of estimator.gaze know the cornea model).
+            glints = self._glints(g[used], lights)
+            if self.method == "polynomial":
+                start = match.cornea_center_m if self._start is None else self._start
+                est = polynomial_gaze(self.setup, self.calibration, glints, mapping=self.mapping,
+                                      start=start, problems=self._problems)
+            else:
+                est = geometric_gaze(self.setup, self.calibration, glints, start=orbit.x,
+                                     problems=self._problems)
+            if self._reason(est) != "ok" or self._implausible(time_s, match.angles_rad):
+                return None
+            self._prior_angles = match.angles_rad
+            self._start = est.resume_from
+            JtJ = orbit.JtJ
+            well = np.linalg.det(JtJ) > 1e-12 * JtJ[0, 0] * JtJ[1, 1]
+            cov = self.prior.noise_px ** 2 * np.linalg.inv(JtJ) if well else np.full((2, 2), np.inf)
+            self._set_state(time_s, match.angles_rad, cov)
+            return GazeSample(f, j, time_s, est.screen_xy_m[0].copy(), est.cornea_center_m[0].copy(),
+                              g[used], lights, float(est.rms_px[0]), "ok",
+                              match.confidence[used].copy())
         if self.method == "polynomial":
             start = match.cornea_center_m if self._start is None else self._start
             fit = fit_small(self._problems.center, g[used],
@@ -364,7 +386,9 @@ class Tracker:
         used = match.matched
         lights = match.light_index[used]
         glints = self._glints(g[used], lights)
-        quick = self._assisted_fit(g[used], lights, mean, cov) if self.follower else None
+        # The compiled small fit models the sphere: a conic calibration takes the batched fits.
+        quick = (self._assisted_fit(g[used], lights, mean, cov)
+                 if self.follower and not self.calibration.conic else None)
         post = None
         if quick is not None:
             xy, center, angles, rms, JtJ = quick
