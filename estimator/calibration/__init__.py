@@ -13,7 +13,7 @@ from .checks import (
     RADIUS_SD_RANGE,
     calibration_warnings,
 )
-from .conic import Q_BOUNDS, calibrate_joint_conic
+from .conic import IDENTIFY_ROUNDS, Q_BOUNDS, calibrate_joint_conic, identify_on_conic
 from .lighting import (
     CORNEA_RADIUS_BOUNDS_M,
     CORNEA_RADIUS_INIT_M,
@@ -38,5 +38,6 @@ __all__ = [
     "corrected_lights", "LightingFit", "calibrate_lighting_per_frame",
     "calibrate_lighting_joint", "calibrate_joint", "MAPPING_TERMS", "RANK_RTOL", "GazeMapping",
     "fit_gaze_mapping", "distance_reading", "ORBIT_RADIUS_BOUNDS_M", "OrbitFit",
-    "orbit_law_of_sines", "orbit_sphere_fit", "Calibration", "Q_BOUNDS", "calibrate_joint_conic"
+    "orbit_law_of_sines", "orbit_sphere_fit", "Calibration", "Q_BOUNDS", "calibrate_joint_conic",
+    "IDENTIFY_ROUNDS", "identify_on_conic"
 ]
