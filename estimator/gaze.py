@@ -179,8 +179,9 @@ def _fit(problem, glints_px, mask, start, model, solver, chain, lower, upper, ma
          prior_mean=None, prior_information=None, conic=None):
     """fit_cornea over a batch, from a shared start or chained sample to sample; with
     ``conic`` = (Q, c_e), :func:`estimator.cornea.fit_cornea_conic` instead."""
-    fit = fit_cornea if conic is None else partial(fit_cornea_conic, asphericity=conic[0],
-                                                   eye_center_m=conic[1])
+    fit = fit_cornea if conic is None else partial(
+        fit_cornea_conic, asphericity=conic[0], eye_center_m=conic[1],
+        conic_start=conic[2] if len(conic) > 2 else None)
     glints = np.asarray(glints_px, dtype=np.float64)
     if glints.ndim == 2:
         glints = glints[None]
@@ -318,10 +319,20 @@ def fit_cornea_centers(setup, calibration: Calibration, glints_px, mask=None, *,
     ``start`` is the initial centre, by default the nominal eye's at primary position (the
     paper's, Sec. 2.2.1); ``chain`` and ``solver`` as in :func:`geometric_gaze`.
     """
-    problem = (calibrated_problems(setup, calibration) if problems is None else problems).center
+    problems = calibrated_problems(setup, calibration) if problems is None else problems
     x0 = setup.eye.cornea_center(0.0, 0.0) if start is None else start
-    return _fit(problem, glints_px, mask, x0, "center", solver, chain, None, None, max_iter,
-                conic=conic_of(calibration))
+    conic = conic_of(calibration)
+    if conic is not None and problems.orbit is not None and not chain:
+        # The free centre's conic iterations start from the conic orbit fit's centre: from the
+        # sphere's answer (mm off in depth at Q = -0.45) they fell into another minimum in 2
+        # of the 5x5 calibration frames (noise-free paper_sim), and the 8-glint fits of noisy
+        # bands had a heavier tail (below).
+        lim = np.full(2, ANGLE_BOUND_RAD)
+        orbit = _fit(problems.orbit, glints_px, mask, (0.0, 0.0), "orbit", solver, False, -lim,
+                     lim, max_iter, conic=conic)
+        conic = conic + (orbit.center_m,)
+    return _fit(problems.center, glints_px, mask, x0, "center", solver, chain, None, None,
+                max_iter, conic=conic)
 
 
 def polynomial_gaze(setup, calibration: Calibration, glints_px, mask=None, *, mapping="eq1_25",

@@ -145,7 +145,7 @@ def cornea_models(text: str) -> tuple:
 
 def cmd_study_aspheric(args) -> int:
     from scet_render.study.aspheric import parse_asphericities, run_aspheric_study
-    from scet_render.study.aspheric_report import accuracy_table
+    from scet_render.study.aspheric_report import accuracy_table, conic_table
 
     qs = parse_asphericities(args.q)
     bars = StageBars()
@@ -156,7 +156,9 @@ def cmd_study_aspheric(args) -> int:
                                                  cornea_models=tuple(args.cornea_models))
     finally:
         bars.close()
-    print(accuracy_table(conditions))
+    print(accuracy_table([c for c in conditions if c.cornea_model == "sphere"]))
+    if any(c.cornea_model == "conic" for c in conditions):
+        print(conic_table(conditions))
     print(f"report written to {path}")
     return 0
 

@@ -1,7 +1,8 @@
 """Calibration (Sec. 2.4-2.5): lighting pose and corneal radius, eye centre and orbit
 radius, the gaze mappings, and the calibration file.
 
-Modules: ``lighting``, ``conic`` (the joint fit with the conic constant Q), ``orbit``, ``mapping`` (Eq. (1) and the second-order polynomials),
+Modules: ``lighting``, ``conic`` (the joint fit with the conic constant Q, and identification
+on the calibrated conic), ``orbit``, ``mapping`` (Eq. (1) and the second-order polynomials),
 ``result`` (:class:`Calibration`, versioned JSON), ``checks`` (is a calibration plausible).
 """
 

@@ -61,7 +61,8 @@ class _ConicJoint:
             for i in idx:
                 x = X[i]
                 R = rotation_from_vector(x[1:4])
-                L.append(np.broadcast_to((self.lights - self.pivot) @ R.T + self.pivot + x[4:7], (m, n, 3)))
+                posed = (self.lights - self.pivot) @ R.T + self.pivot + x[4:7]
+                L.append(np.broadcast_to(posed, (m, n, 3)))
                 u = self.targets - x[7:10]
                 u = u / np.linalg.norm(u, axis=1, keepdims=True)
                 C.append(x[7:10] + x[10] * u)
@@ -128,14 +129,16 @@ def calibrate_joint_conic(camera: Camera, lights_world_m, glints_px, targets_m, 
     sol = least_squares(joint.residuals, x0, jac=joint.jacobian, bounds=(lo, hi), method="trf",
                         x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=max_nfev)
     x = sol.x
-    r_c, w, t, ce, r_co, q = float(x[0]), x[1:4].copy(), x[4:7].copy(), x[7:10].copy(), float(x[10]), float(x[11])
+    r_c, w, t, ce = float(x[0]), x[1:4].copy(), x[4:7].copy(), x[7:10].copy()
+    r_co, q = float(x[10]), float(x[11])
     u = T - ce
     C = ce + r_co * u / np.linalg.norm(u, axis=1, keepdims=True)
     rms = float(np.sqrt(2 * sol.cost / max(m.sum(), 1)))
     light = LightingFit(pose_correction(w, t, joint.pivot), w, t, joint.pivot.copy(), r_c,
                         float("nan"), C, np.full(len(T), r_c), rms, "joint_targets_conic",
                         bool(sol.status > 0))
-    return light, OrbitFit(ce, r_co, 0.0, int(sol.nfev), "joint_targets_conic", bool(sol.status > 0)), q
+    orbit = OrbitFit(ce, r_co, 0.0, int(sol.nfev), "joint_targets_conic", bool(sol.status > 0))
+    return light, orbit, q
 
 
 #: Rounds of re-identification of the calibration glints on the calibrated conic

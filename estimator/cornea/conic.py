@@ -133,8 +133,9 @@ def _normal_equations(model, problem, x, glints, mask, lights, eye_center_m, asp
 
 def fit_cornea_conic(problem: FitProblem, glints_px, mask=None, x0=None, *, model: str = "center",
                      asphericity: float, eye_center_m, max_iter: int = 50,
-                     conic_iter: int = CONIC_MAX_ITERATIONS, prior_mean=None, prior_information=None, lower=None, upper=None,
-                     solver: str = "lm") -> CorneaFit:
+                     conic_iter: int = CONIC_MAX_ITERATIONS, prior_mean=None,
+                     prior_information=None, lower=None, upper=None, solver: str = "lm",
+                     conic_start=None) -> CorneaFit:
     """:func:`estimator.cornea.fit_cornea` with a conic cornea of constant ``asphericity``
     about the optical axis through ``eye_center_m`` (module docstring).
 
@@ -156,6 +157,9 @@ def fit_cornea_conic(problem: FitProblem, glints_px, mask=None, x0=None, *, mode
         Iterations of the spherical fit (:func:`fit_cornea`'s ``max_iter``).
     conic_iter : int
         Levenberg-Marquardt iterations on the conic after it.
+    conic_start : (B, p) float, optional
+        Where the conic iterations start, per sample (NaN rows: the spherical fit's answer);
+        default the spherical fit's answer.
     prior_mean, prior_information, lower, upper, solver
         As :func:`fit_cornea` (the spherical start takes them all; the conic iterations add
         the prior's term and clip their steps to the bounds).
@@ -190,6 +194,9 @@ def fit_cornea_conic(problem: FitProblem, glints_px, mask=None, x0=None, *, mode
     g, m = np.take_along_axis(g, order[..., None], axis=1), np.take_along_axis(m, order, axis=1)
     L = problem.lights_world_m[order]
     x = (fit.angles_rad if model == "orbit" else fit.center_m)[idx].copy()
+    if conic_start is not None:
+        x0c = np.asarray(conic_start, dtype=np.float64).reshape(glints.shape[0], -1)[idx]
+        x = np.where(np.isfinite(x0c).all(axis=1, keepdims=True), x0c, x)
     p = x.shape[1]
     lo = np.full(p, -np.inf) if lower is None else np.asarray(lower, dtype=np.float64)
     hi = np.full(p, np.inf) if upper is None else np.asarray(upper, dtype=np.float64)

@@ -174,3 +174,25 @@ def test_unknown_model_names_are_refused(setup):
     with pytest.raises(ValueError, match="'center' and 'orbit'"):
         fit_cornea_conic(problem, np.zeros((40, 2)), None, np.zeros(4), model="center_radius",
                          asphericity=-0.2, eye_center_m=np.zeros(3))
+
+
+def test_calibration_glints_identified_on_the_calibrated_conic(setup):
+    """Shuffled detections with clutter, identified on the exact conic calibration: every
+    light gets its own glint back (the gate, 2.5 px, is far above the noise-free 0 px and far
+    below the ~10 px between neighbouring glints)."""
+    from estimator.calibration import identify_on_conic
+    from estimator.matching import MatchParams
+
+    s = _conic_setup(setup, -0.25)
+    g, targets = _calibration_frames(s)
+    cal = calibrate_from_glints(s, g, targets, cornea_model="conic")
+    rng = np.random.default_rng(5)
+    detections = []
+    for frame in g:
+        d = frame[np.isfinite(frame[:, 0])]
+        clutter = rng.uniform([0, 0], [s.camera.width_px, s.camera.height_px], size=(5, 2))
+        detections.append(rng.permutation(np.concatenate([d, clutter])))
+    got = identify_on_conic(cal, s, detections, targets, gate_px=MatchParams().gate_px)
+    seen = np.isfinite(g[..., 0])
+    np.testing.assert_array_equal(np.isfinite(got[..., 0]), seen)
+    np.testing.assert_array_equal(got[seen], g[seen])
