@@ -268,6 +268,23 @@ def conic_feature_table(features: dict) -> str:
     return out.getvalue()
 
 
+def _conic_findings(conditions) -> str:
+    """Per method and Q (lids on, rendered): the conic tracker's mean error against the
+    sphere's at Q = 0, and the calibrated Q."""
+    sphere = {(c.q, c.lids): c for c in conditions if c.cornea_model == "sphere"}
+    lines = []
+    for m in METHODS:
+        for c in (c for c in conditions if c.cornea_model == "conic" and c.lids and c.q != 0):
+            s0, s = sphere.get((0.0, True)), sphere.get((c.q, True))
+            if s0 is None or s is None:
+                continue
+            a, b0, b = (x.stats[("rendered", m, "all")][2] for x in (c, s0, s))
+            lines.append(f"- {m}, rendered, lids on, Q = {c.q:g} (calibrated {c.cornea_asphericity:.4f}): "
+                         f"conic tracker {_f(a)} deg, {_f(a - b0, '+.3f')} deg from the sphere's "
+                         f"{_f(b0)} at Q = 0 (spherical tracker here: {_f(b)} deg).")
+    return "\n".join(lines) + ("\n" if lines else "")
+
+
 def _conic_section(conditions, features) -> str:
     if not any(c.cornea_model == "conic" for c in conditions):
         return ""
@@ -284,6 +301,7 @@ conic); each band's fit starts from the sphere's answer and iterates on the coni
 (the optical axis from c_e through the fitted centre). Identification stays the spherical
 matcher's.
 
+{_conic_findings(conditions)}
 {conic_table(conditions)}
 Feature level (full size, noise-free, every visible glint, calibrated from the simulated 5x5
 pattern):
