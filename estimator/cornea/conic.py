@@ -39,18 +39,18 @@ CORNEA_MODELS = ("sphere", "conic")
 ASPHERICITY_RANGE = (-1.0, 1.0)
 #: The conic iterations stop when a step moves the cornea centre by less than this (m): 1e-9 m
 #: is a thousandth of the ~1 um scatter that 0.5 px of glint noise leaves in a band's centre
-#: (Gauss-Newton converges quadratically here: the step before it was ~1e-5 m).
+#: (noise-free, the fits above end 4e-16 m from the truth: the convergence is quadratic).
 CONIC_STEP_TOL_M = 1e-9
 #: ... or when an accepted step lowers the cost by less than this share of it: with noisy
-#: glints the centre model's depth is weakly determined and its steps stay above the step
-#: tolerance while the cost no longer changes (measured on the quick study's Q = -0.25 renders:
-#: 24 of 212 polynomial samples hit the iteration cap without it). 1e-10 of a cost of ~1 px²
-#: is far below anything the glints resolve; the Jacobian's central differences are good to
-#: ~1e-8 relative, so a tighter test only chases their rounding.
+#: glints the centre model's depth is weakly determined and its steps can stay above the step
+#: tolerance while the cost no longer changes. 1e-10 of a cost of ~1 px² is far below anything
+#: the glints resolve; the Jacobian's central differences are good to ~1e-8 relative, so a
+#: tighter test only chases their rounding.
 CONIC_FTOL = 1e-10
 #: Most Levenberg-Marquardt iterations on the conic after the spherical start: most samples
-#: take 2-4, but on the quick study's Q = -0.25 renders 1 band in 10 took 22-27 (a cap of 20
-#: failed them as not converged); the spherical fit's own cap is 50.
+#: take 2-4, but on the quick study's Q = -0.25 renders about 1 band in 10 took 22-27 (a cap of
+#: 20 failed 24 of 236 polynomial samples as not converged, 21 with the flat-cost stop alone,
+#: 7 with a cap of 50); the spherical fit's own cap is 50.
 CONIC_MAX_ITERATIONS = 50
 #: Initial damping relative to the diagonal of JᵀJ (the spherical fit's ``solve._LAMBDA0``:
 #: from the sphere's answer the conic's minimum is a few hundred um away, Gauss-Newton's reach).
