@@ -16,9 +16,16 @@ drifts: ratios are per round):
 samples/s (every lit band is a sample, NaN or not), per-frame latency p50/p99 (frame in, its
 samples out), whether both give the same samples (reasons, identities, estimates to 1e-6 m),
 where each band's microseconds go on the cheap path, and the estimated Raspberry Pi 3B+ figure.
+With ``--conic Q`` it measures instead what the estimator's conic cornea option costs: the
+same synthetic frames of an eye whose cornea has conic constant Q, tracked with the cheap path
+by the spherical tracker and by the conic-aware one (``cornea_model = "conic"``, Q known; both
+calibrations exact: nominal lighting, the eye's own c_e and r_co, Eq. (1) fitted to the model's
+own noise-free centres of the 5x5 pattern), alternated over the rounds: samples/s of each, their
+ratio per round, and the samples each estimates.
 Usage:
 
     python benchmarks/bench_tracker.py [--frames 60] [--rounds 3] [--dataset DIR [--pulses N]]
+                                       [--conic Q]
 
 60 frames are one second of video: a stream's first cold search and the searches after
 saccades that cross a frame gap weigh in as in a longer run.
@@ -145,6 +152,45 @@ def breakdown(setup, cal, method, frames) -> dict:
     return {"samples": len(samples), "wall": wall, **totals}
 
 
+def conic_calibration(setup):
+    """The exact calibration of ``setup``'s conic eye for the conic-aware tracker: as
+    :func:`ground_truth_calibration`, with ``cornea_model = "conic"`` and the eye's Q, its
+    Eq. (1) mapping fitted to the conic fits' centres."""
+    from dataclasses import replace
+
+    from estimator.calibration import fit_gaze_mapping
+    from estimator.gaze import fit_cornea_centers
+
+    cal = replace(ground_truth_calibration(setup), mappings={}, cornea_model="conic",
+                  cornea_asphericity=setup.eye.cornea_asphericity)
+    targets = setup.screen.grid(5, 5, margin=0.0)
+    yaw, pitch = setup.eye.angles_toward(targets)
+    g, vis, _ = setup.eye.glints(setup.camera, setup.lights_world_m, yaw, pitch)
+    c = fit_cornea_centers(setup, cal, np.where(vis[..., None], g, np.nan)).center_m
+    return cal.with_mappings(eq1_25=fit_gaze_mapping(c, targets, "eq1", degenerate="min_norm"))
+
+
+def compare_cornea_models(setup, frames, rounds: int) -> None:
+    """Spherical against conic-aware tracker, cheap path, alternated on the same frames."""
+    cals = {"sphere": ground_truth_calibration(setup), "conic": conic_calibration(setup)}
+    for method in ("polynomial", "geometric"):
+        for cal in cals.values():
+            run(Tracker(setup, cal, method), frames[:3])
+        rates = {k: [] for k in cals}
+        oks = {}
+        for _ in range(rounds):
+            for name, cal in cals.items():
+                samples, lat = run(Tracker(setup, cal, method), frames)
+                rates[name].append(len(samples) / lat.sum())
+                oks[name] = (sum(x.ok for x in samples), len(samples))
+        ratio = np.array(rates["sphere"]) / np.array(rates["conic"])
+        for name in cals:
+            r = np.array(rates[name])
+            print(f"tracker {method}, {name} cornea: {np.median(r):.0f} samples/s (rounds "
+                  f"{r.min():.0f}-{r.max():.0f}), {oks[name][0]}/{oks[name][1]} samples estimated")
+        print(f"  sphere / conic: {np.median(ratio):.2f}x (rounds {ratio.min():.2f}-{ratio.max():.2f})")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=60)
@@ -153,8 +199,17 @@ def main(argv=None):
     ap.add_argument("--pulses", type=int, default=None,
                     help="pulses per frame of --dataset (default: the scene's; the quick "
                          "validation's test_p8 needs 8)")
+    ap.add_argument("--conic", type=float, default=None, metavar="Q",
+                    help="compare the spherical and the conic-aware tracker on an eye of conic "
+                         "constant Q (synthetic frames only)")
     args = ap.parse_args(argv)
     setup = load_scene("paper_sim")
+    if args.conic is not None:
+        from dataclasses import replace
+
+        if args.dataset is not None:
+            ap.error("--conic runs on synthetic frames; leave out --dataset")
+        setup = replace(setup, eye=replace(setup.eye, cornea_asphericity=args.conic))
     if args.pulses is not None:
         from estimator.banding import strobe_setup
 
@@ -185,6 +240,9 @@ def main(argv=None):
           f"({1e3 * dt / len(frames):.2f} ms/frame, {n_glints / len(frames):.1f} glints/frame, "
           f"{detector.windowed} of {detector.frames} frames in a window)")
 
+    if args.conic is not None:
+        compare_cornea_models(setup, frames, args.rounds)
+        return
     cal = ground_truth_calibration(setup)
     for method in ("polynomial", "geometric"):
         for cheap in (False, True):  # compile the cheap path's kernels before timing

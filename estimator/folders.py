@@ -31,14 +31,18 @@ import numpy as np
 
 from .banding import NO_PULSE, row_strobe
 from .calibration import (
+    IDENTIFY_ROUNDS,
     MAPPING_TERMS,
     Calibration,
     calibrate_joint,
+    calibrate_joint_conic,
     calibration_warnings,
     fit_gaze_mapping,
+    identify_on_conic,
 )
 from .capture import is_capture_folder
 from .checks import load_json
+from .cornea import check_conic
 from .formats import atomic_write
 from .gaze import fit_cornea_centers
 from .glints import NO_BAND, detect_glints
@@ -55,7 +59,7 @@ from .inputs import (
     refuse_overwriting_inputs,
     timing_document,
 )
-from .matching import GlintMatcher
+from .matching import GlintMatcher, MatchParams
 from .samples import SAMPLE_COLUMNS, read_samples_csv, samples_csv, write_samples_csv  # noqa: F401
 from .setup import Setup
 from .tracker import INTERNAL_ERROR, MIN_GLINTS, Tracker, TrackerInputError
@@ -108,11 +112,13 @@ def iter_folder(folder, setup: Setup, timing: FolderTiming | None = None
 @dataclass(frozen=True, slots=True)
 class CalibrationGlints:
     """Identified glints of the calibration frames: (m, n, 2) NaN where missing, targets
-    (m, 3) m, and the frame indices used."""
+    (m, 3) m, and the frame indices used; and every detected frame's detections, targets and
+    indices (identified or not: what a re-identification starts from)."""
 
     glints_px: np.ndarray
     targets_m: np.ndarray
     frames: tuple
+    detected: tuple = ()  # of (frame, target (3,), detections (k, 2))
 
 
 #: Calibration frames: the least share of a pulse every visible row must collect (a row that
@@ -164,7 +170,7 @@ def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
     targets = read_targets(folder)
     matcher = GlintMatcher(cal_setup)
     n = cal_setup.lights.count
-    rows, used_targets, frames = [], [], []
+    rows, used_targets, frames, detected = [], [], [], []
     for f, _, img, err in iter_folder(folder, cal_setup):
         if err is not None or f not in targets:
             log.warning("calibration frame %d left out: %s", f, err or "no target in labels")
@@ -175,6 +181,7 @@ def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
             log.warning("calibration frame %d left out: %s", f, exc)
             continue
         det = det.select(~det.has(NO_BAND))
+        detected.append((f, np.asarray(targets[f], dtype=np.float64), det.glints_px))
         prior = np.array(cal_setup.eye.angles_toward(targets[f][None])).reshape(2)
         match = matcher.match(det.glints_px, prior_angles_rad=prior)
         if not match.ok:
@@ -191,34 +198,65 @@ def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
         frames.append(f)
     if len(rows) < 4:
         raise TrackerInputError(f"{folder}: only {len(rows)} usable calibration frames, need >= 4")
-    return cal_setup, CalibrationGlints(np.array(rows), np.array(used_targets), tuple(frames))
+    return cal_setup, CalibrationGlints(np.array(rows), np.array(used_targets), tuple(frames),
+                                        tuple(detected))
 
 
-def calibrate_from_folder(folder, setup: Setup) -> Calibration:
+def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere") -> Calibration:
     """Calibrate from a folder of single-pulse calibration frames (targets in labels.jsonl).
 
     Lighting pose, corneal radius, eye centre and orbit radius are fitted at once
     (:func:`estimator.calibration.calibrate_joint`, optical axis through the targets); the
     mappings from the fitted cornea centres: ``eq1_<m>`` (Eq. (1)) and ``quadratic_<m>``
     (minimum-norm where the orbit makes it rank deficient), m the number of frames used.
+    ``cornea_model="conic"`` calibrates the conic constant Q with the rest
+    (:func:`estimator.calibration.calibrate_joint_conic`) and records it in the file.
     """
+    check_conic(cornea_model, 0.0)
     cal_setup, cg = calibration_glints(folder, setup)
-    return calibrate_from_glints(cal_setup, cg.glints_px, cg.targets_m,
-                                 frames_total=len(read_targets(folder)))
+    total = len(read_targets(folder))
+    cal = calibrate_from_glints(cal_setup, cg.glints_px, cg.targets_m, frames_total=total,
+                                cornea_model=cornea_model)
+    if cornea_model == "conic":
+        # The spherical matcher's identities of oblique glints are wrong on a conic cornea:
+        # identify every detected frame again on the calibrated conic, and recalibrate.
+        targets = np.array([t for _, t, _ in cg.detected])
+        previous = None
+        for _ in range(IDENTIFY_ROUNDS):
+            g = identify_on_conic(cal, cal_setup, [d for _, _, d in cg.detected], targets,
+                                  gate_px=MatchParams().gate_px)
+            enough = np.isfinite(g[..., 0]).sum(axis=1) >= MIN_GLINTS
+            if enough.sum() < 4 or (previous is not None and np.array_equal(
+                    np.isfinite(g), np.isfinite(previous)) and np.allclose(g, previous, equal_nan=True)):
+                break
+            previous = g
+            cal = calibrate_from_glints(cal_setup, g[enough], targets[enough], frames_total=total,
+                                        cornea_model="conic")
+    return cal
 
 
 def calibrate_from_glints(setup: Setup, glints_px, targets_m, *,
-                          frames_total: int | None = None) -> Calibration:
+                          frames_total: int | None = None,
+                          cornea_model: str = "sphere") -> Calibration:
     """:func:`calibrate_from_folder` on identified glints: (m, n, 2) px (NaN: not seen) of
     ``setup``'s lights with the eye fixating (m, 3) ``targets_m`` (the feature-level
-    simulator's glints, or a folder's). ``frames_total``: the frames there were (default m)."""
+    simulator's glints, or a folder's). ``frames_total``: the frames there were (default m).
+    ``cornea_model``: ``"sphere"`` (the paper's) or ``"conic"`` (Q calibrated too)."""
+    check_conic(cornea_model, 0.0)
     glints_px = np.asarray(glints_px, dtype=np.float64)
     used = glints_px.shape[0]
     total = used if frames_total is None else int(frames_total)
     mask = np.isfinite(glints_px).all(axis=-1)
-    lighting, orbit = calibrate_joint(setup.camera, setup.lights_world_m, glints_px,
-                                      targets_m, mask, center0_m=setup.eye.cornea_center(0.0, 0.0))
-    cal = Calibration.from_fits(lighting, orbit)
+    center0 = setup.eye.cornea_center(0.0, 0.0)
+    if cornea_model == "conic":
+        lighting, orbit, q = calibrate_joint_conic(setup.camera, setup.lights_world_m, glints_px,
+                                                   targets_m, mask, center0_m=center0)
+        cal = replace(Calibration.from_fits(lighting, orbit), cornea_model="conic",
+                      cornea_asphericity=q)
+    else:
+        lighting, orbit = calibrate_joint(setup.camera, setup.lights_world_m, glints_px,
+                                          targets_m, mask, center0_m=center0)
+        cal = Calibration.from_fits(lighting, orbit)
     cal = cal.with_quality(
         rms_px=float(lighting.rms_px), frames_used=used, frames_total=total,
         warnings=calibration_warnings(lighting, orbit, frames_used=used, frames_total=total))

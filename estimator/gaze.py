@@ -24,6 +24,7 @@ the orbit, spread by the eye's rotation) from the same c_e and r_co.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
@@ -36,6 +37,7 @@ from .cornea import (
     CorneaFit,
     FitProblem,
     fit_cornea,
+    fit_cornea_conic,
     fit_covariance,
 )
 from .eye import gaze_direction
@@ -168,9 +170,18 @@ def posterior_covariance(problem: FitProblem, angles_rad, mask, prior_cov_rad2,
     return out
 
 
+def conic_of(calibration: Calibration):
+    """``(Q, c_e)`` of a calibration whose cornea model is the conic, else None (the sphere)."""
+    return (calibration.cornea_asphericity, calibration.eye_center_m) if calibration.conic else None
+
+
 def _fit(problem, glints_px, mask, start, model, solver, chain, lower, upper, max_iter,
-         prior_mean=None, prior_information=None):
-    """fit_cornea over a batch, from a shared start or chained sample to sample."""
+         prior_mean=None, prior_information=None, conic=None):
+    """fit_cornea over a batch, from a shared start or chained sample to sample; with
+    ``conic`` = (Q, c_e), :func:`estimator.cornea.fit_cornea_conic` instead."""
+    fit = fit_cornea if conic is None else partial(
+        fit_cornea_conic, asphericity=conic[0], eye_center_m=conic[1],
+        conic_start=conic[2] if len(conic) > 2 else None)
     glints = np.asarray(glints_px, dtype=np.float64)
     if glints.ndim == 2:
         glints = glints[None]
@@ -180,17 +191,17 @@ def _fit(problem, glints_px, mask, start, model, solver, chain, lower, upper, ma
     if prior_mean is not None:
         if chain:
             raise ValueError("a prior per sample and chain=True exclude each other")
-        return fit_cornea(problem, glints, mask, start, model=model, solver=solver, lower=lower,
-                          upper=upper, max_iter=max_iter, prior_mean=prior_mean,
-                          prior_information=prior_information)
+        return fit(problem, glints, mask, start, model=model, solver=solver, lower=lower,
+                   upper=upper, max_iter=max_iter, prior_mean=prior_mean,
+                   prior_information=prior_information)
     if not chain:
-        return fit_cornea(problem, glints, mask, start, model=model, solver=solver, lower=lower,
-                          upper=upper, max_iter=max_iter)
+        return fit(problem, glints, mask, start, model=model, solver=solver, lower=lower,
+                   upper=upper, max_iter=max_iter)
     x = np.asarray(start, dtype=np.float64)
     fits = []
     for b in range(glints.shape[0]):
-        f = fit_cornea(problem, glints[b:b + 1], mask[b:b + 1], x, model=model, solver=solver,
-                       lower=lower, upper=upper, max_iter=max_iter)
+        f = fit(problem, glints[b:b + 1], mask[b:b + 1], x, model=model, solver=solver,
+                lower=lower, upper=upper, max_iter=max_iter)
         fits.append(f)
         if f.ok[0]:
             x = f.angles_rad[0] if model == "orbit" else f.center_m[0]
@@ -242,14 +253,15 @@ def _batch(glints_px) -> int:
     return 1 if np.ndim(glints_px) == 2 else int(np.shape(glints_px)[0])
 
 
-def _orbit_fit(problem, glints_px, mask, start, chain, solver, max_iter, prior):
+def _orbit_fit(problem, glints_px, mask, start, chain, solver, max_iter, prior, conic=None):
     lim = np.full(2, ANGLE_BOUND_RAD)
     if prior is None:
-        return _fit(problem, glints_px, mask, start, "orbit", solver, chain, -lim, lim, max_iter)
+        return _fit(problem, glints_px, mask, start, "orbit", solver, chain, -lim, lim, max_iter,
+                    conic=conic)
     mean, info, present = prior
     x0 = np.where(present[:, None], mean, np.broadcast_to(np.asarray(start, np.float64), mean.shape))
     return _fit(problem, glints_px, mask, x0, "orbit", solver, False, -lim, lim, max_iter,
-                prior_mean=mean, prior_information=info)
+                prior_mean=mean, prior_information=info, conic=conic)
 
 
 def geometric_gaze(setup, calibration: Calibration, glints_px, mask=None, *, start=(0.0, 0.0),
@@ -290,7 +302,8 @@ def geometric_gaze(setup, calibration: Calibration, glints_px, mask=None, *, sta
         raise ValueError("geometric gaze needs a calibration with the eye centre and orbit radius")
     problem = orbit_problem(setup, calibration) if problems is None else problems.orbit
     prior = _prior_args(prior_mean_rad, prior_cov_rad2, noise_px, _batch(glints_px))
-    fit = _orbit_fit(problem, glints_px, mask, start, chain, solver, max_iter, prior)
+    fit = _orbit_fit(problem, glints_px, mask, start, chain, solver, max_iter, prior,
+                     conic_of(calibration))
     points, hits = screen_intersection(calibration.eye_center_m,
                                        gaze_direction(fit.angles_rad[:, 0], fit.angles_rad[:, 1]),
                                        setup.screen.z_m)
@@ -306,9 +319,20 @@ def fit_cornea_centers(setup, calibration: Calibration, glints_px, mask=None, *,
     ``start`` is the initial centre, by default the nominal eye's at primary position (the
     paper's, Sec. 2.2.1); ``chain`` and ``solver`` as in :func:`geometric_gaze`.
     """
-    problem = (calibrated_problems(setup, calibration) if problems is None else problems).center
+    problems = calibrated_problems(setup, calibration) if problems is None else problems
     x0 = setup.eye.cornea_center(0.0, 0.0) if start is None else start
-    return _fit(problem, glints_px, mask, x0, "center", solver, chain, None, None, max_iter)
+    conic = conic_of(calibration)
+    if conic is not None and problems.orbit is not None and not chain:
+        # The free centre's conic iterations start from the conic orbit fit's centre: from the
+        # sphere's answer (mm off in depth at Q = -0.45) they fell into another minimum in 2
+        # of the 5x5 calibration frames (noise-free paper_sim), and the 8-glint fits of noisy
+        # bands had a heavier tail (below).
+        lim = np.full(2, ANGLE_BOUND_RAD)
+        orbit = _fit(problems.orbit, glints_px, mask, (0.0, 0.0), "orbit", solver, False, -lim,
+                     lim, max_iter, conic=conic)
+        conic = conic + (orbit.center_m,)
+    return _fit(problems.center, glints_px, mask, x0, "center", solver, chain, None, None,
+                max_iter, conic=conic)
 
 
 def polynomial_gaze(setup, calibration: Calibration, glints_px, mask=None, *, mapping="eq1_25",
@@ -349,7 +373,7 @@ def polynomial_gaze(setup, calibration: Calibration, glints_px, mask=None, *, ma
         orbit = orbit_problem(setup, calibration) if problems is None else problems.orbit
         fit = _merge(prior[2],
                      _orbit_fit(orbit, glints_px, mask, (0.0, 0.0), False, solver, max_iter,
-                                prior),
+                                prior, conic_of(calibration)),
                      fit_cornea_centers(setup, calibration, glints_px, mask, start=start,
                                         chain=chain, solver=solver, max_iter=max_iter,
                                         problems=problems))

@@ -20,6 +20,31 @@ from .formats import SAMPLES_FORMAT, SAMPLES_READABLE, SAMPLES_VERSION, atomic_w
 
 
 
+#: Reason codes of a :class:`GazeSample` beyond those of :mod:`estimator.gaze` ("ok",
+#: "too_few_glints", "not_converged", "non_finite", "misses_screen") and of the matcher,
+#: which are prefixed "match_" ("match_too_few_glints", "match_ambiguous", ...).
+UNREADABLE_FRAME = "unreadable_frame"
+WRONG_FRAME_SIZE = "wrong_frame_size"
+SATURATED_FRAME = "saturated_frame"
+MISSING_FRAME = "missing_frame"
+INTERNAL_ERROR = "internal_error"
+RESIDUAL_TOO_LARGE = "residual_too_large"
+#: A band's own identification puts the eye further from the previous sample than it can turn
+#: in the time between them (``estimator.tracker.JUMP_AGE_S``, ``JUMP_SLACK_DEG``).
+IMPLAUSIBLE_JUMP = "implausible_jump"
+#: No eye rotation within that turn of a sample under ``JUMP_AGE_S`` old puts ``MIN_GLINTS``
+#: glints on the band's rows (the top rows of a frame while the eye looks down): the band is not searched (a search could match it only at a rotation
+#: :data:`IMPLAUSIBLE_JUMP` rejects) and is left to the prior.
+OUT_OF_REACH = "band_out_of_reach"
+#: Prefix of the reason of a sparse band whose prior-assisted estimate failed too (e.g.
+#: "prior_ambiguous", "prior_residual_too_large"): a prior was there, it did not suffice.
+PRIOR_PREFIX = "prior_"
+#: Failures of a band's own identification, after which the band may still be identified with
+#: the prior (not a fit that failed on identified glints: those glints were the trouble).
+IDENTITY_FAILURES = frozenset({OUT_OF_REACH, "match_too_few_glints", "match_ambiguous",
+                               "match_no_hypothesis", "match_fit_failed", "too_few_glints"})
+
+
 def inverse_2x2(A, rcond: float = 1e-12):
     """The inverse of a symmetric positive semi-definite 2 x 2 matrix (a JᵀJ, a covariance) in
     closed form, or None where its determinant is not above ``rcond`` a₀₀ a₁₁, i.e. where it is

@@ -56,34 +56,15 @@ from .gaze import (
 )
 from .glints import NO_BAND, DetectionParams, GlintDetections, GlintDetector
 from .matching import BandFollower, FollowParams, GlintMatcher, MatchParams
-from .samples import (BandPrior, GazeSample, TrackerInputError, failed_sample,  # noqa: F401
-                      inverse_2x2)
+from .samples import (  # noqa: F401 (the reason codes: re-exported)
+    IDENTITY_FAILURES, IMPLAUSIBLE_JUMP, INTERNAL_ERROR, MISSING_FRAME, OUT_OF_REACH,
+    PRIOR_PREFIX, RESIDUAL_TOO_LARGE, SATURATED_FRAME, UNREADABLE_FRAME, WRONG_FRAME_SIZE,
+    BandPrior, GazeSample, TrackerInputError, failed_sample, inverse_2x2)
 from .setup import Setup
 
 log = logging.getLogger(__name__)
 
 METHODS = ("polynomial", "geometric")
-
-#: Reason codes of a :class:`GazeSample` beyond those of :mod:`estimator.gaze` ("ok",
-#: "too_few_glints", "not_converged", "non_finite", "misses_screen") and of the matcher,
-#: which are prefixed "match_" ("match_too_few_glints", "match_ambiguous", ...).
-UNREADABLE_FRAME = "unreadable_frame"
-WRONG_FRAME_SIZE = "wrong_frame_size"
-SATURATED_FRAME = "saturated_frame"
-MISSING_FRAME = "missing_frame"
-INTERNAL_ERROR = "internal_error"
-RESIDUAL_TOO_LARGE = "residual_too_large"
-#: A band's own identification puts the eye further from the previous sample than it can turn
-#: in the time between them (:data:`JUMP_AGE_S`, :data:`JUMP_SLACK_DEG`).
-IMPLAUSIBLE_JUMP = "implausible_jump"
-#: No eye rotation within that turn of a sample under :data:`JUMP_AGE_S` old puts
-#: :data:`MIN_GLINTS` glints on the band's rows (the top rows of a frame while the eye looks
-#: down): the band is not searched (a search could match it only at a rotation
-#: :data:`IMPLAUSIBLE_JUMP` rejects) and is left to the prior.
-OUT_OF_REACH = "band_out_of_reach"
-#: Prefix of the reason of a sparse band whose prior-assisted estimate failed too (e.g.
-#: "prior_ambiguous", "prior_residual_too_large"): a prior was there, it did not suffice.
-PRIOR_PREFIX = "prior_"
 
 #: A frame with more than this share of its pixels at full scale is not an eye image the
 #: detector can read (a lamp in view, a failed exposure): its samples fail with
@@ -257,7 +238,7 @@ class Tracker:
             sample = failed_sample(f, j, time_s, "match_too_few_glints", g)
         else:
             sample = self._dense(f, j, time_s, g, rows)
-            if sample.ok or sample.reason not in _IDENTITY_FAILURES:
+            if sample.ok or sample.reason not in IDENTITY_FAILURES:
                 return self._keep(sample)
         self._lose()
         return self._keep(self._assisted(f, j, time_s, g, rows, sample))
@@ -341,7 +322,22 @@ class Tracker:
         match, orbit = got.match, got.fit
         used = match.matched
         lights = match.light_index[used]
-        if self.method == "polynomial":
+        if self.calibration.conic:
+            # The follower identifies on the sphere; the conic's estimate comes from the
+            # batched fits of estimator.gaze, which know the cornea model.
+            glints = self._glints(g[used], lights)
+            if self.method == "polynomial":
+                start = match.cornea_center_m if self._start is None else self._start
+                est = polynomial_gaze(self.setup, self.calibration, glints, mapping=self.mapping,
+                                      start=start, problems=self._problems)
+            else:
+                est = geometric_gaze(self.setup, self.calibration, glints, start=orbit.x,
+                                     problems=self._problems)
+            if self._reason(est) != "ok":
+                return None
+            xy, center = est.screen_xy_m[0], est.cornea_center_m[0]
+            rms, resume = float(est.rms_px[0]), est.resume_from
+        elif self.method == "polynomial":
             start = match.cornea_center_m if self._start is None else self._start
             fit = fit_small(self._problems.center, g[used],
                             self._problems.center.lights_world_m[lights], start, model="center",
@@ -351,7 +347,8 @@ class Tracker:
             center, rms, resume = fit.x, fit.rms_px, fit.x
         else:
             center, rms, resume = match.cornea_center_m, orbit.rms_px, orbit.x
-        xy = self._gaze_point(center, orbit.x)
+        if not self.calibration.conic:
+            xy = self._gaze_point(center, orbit.x)
         if not (np.isfinite(xy).all() and rms <= MAX_RESIDUAL_PX) or \
                 self._implausible(time_s, match.angles_rad):
             return None
@@ -379,7 +376,9 @@ class Tracker:
         used = match.matched
         lights = match.light_index[used]
         glints = self._glints(g[used], lights)
-        quick = self._assisted_fit(g[used], lights, mean, cov) if self.follower else None
+        # The compiled small fit models the sphere: a conic calibration takes the batched fits.
+        quick = (self._assisted_fit(g[used], lights, mean, cov)
+                 if self.follower and not self.calibration.conic else None)
         post = None
         if quick is not None:
             xy, center, angles, rms, JtJ = quick
@@ -492,9 +491,3 @@ class Tracker:
         if reason == "ok" and not est.rms_px[0] <= MAX_RESIDUAL_PX:
             reason = RESIDUAL_TOO_LARGE
         return reason
-
-
-#: Failures of a band's own identification, after which the band may still be identified with
-#: the prior (not a fit that failed on identified glints: those glints were the trouble).
-_IDENTITY_FAILURES = frozenset({OUT_OF_REACH, "match_too_few_glints", "match_ambiguous",
-                                "match_no_hypothesis", "match_fit_failed", "too_few_glints"})

@@ -166,10 +166,11 @@ def cmd_calibrate(args) -> int:
 
     refuse_overwriting_inputs(args.out, input_files(args.dir))
     setup = load_scene(args.scene)
-    cal = calibrate_from_folder(args.dir, setup)
+    cal = calibrate_from_folder(args.dir, setup, cornea_model=args.cornea_model)
     path = save_calibration(cal, args.out)
     q = cal.quality
-    print(f"calibration written to {path}: r_c = {cal.cornea_radius_m * 1e3:.3f} mm, "
+    conic = f"conic cornea Q = {cal.cornea_asphericity:.4f}, " if cal.conic else ""
+    print(f"calibration written to {path}: {conic}r_c = {cal.cornea_radius_m * 1e3:.3f} mm, "
           f"r_co = {cal.orbit_radius_m * 1e3:.3f} mm, glint RMS {q.get('rms_px', float('nan')):.3f} px, "
           f"{q.get('frames_used', '?')} of {q.get('frames_total', '?')} frames")
     for name, why in sorted(q.get("mappings_skipped", {}).items()):
@@ -378,6 +379,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dir", type=Path, help="folder of frames (frames/NNNNNN.png, labels.jsonl, timing)")
     p.add_argument("--scene", help=scene_help)
     p.add_argument("--out", type=Path, required=True, help="calibration file (JSON)")
+    p.add_argument("--cornea-model", choices=("sphere", "conic"), default="sphere",
+                   help="the tracker's cornea: the paper's sphere (default), or a conic about "
+                        "the optical axis whose conic constant Q is calibrated too (recorded in "
+                        "the file; scet track then tracks with it)")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("track", help="track a folder of banded frames: one gaze sample per lit band")

@@ -128,19 +128,37 @@ def cmd_study_events(args) -> int:
     return 0
 
 
+def cornea_models(text: str) -> tuple:
+    """``--cornea-models`` text: comma-separated names of estimator.cornea.CORNEA_MODELS,
+    starting with ``sphere`` (the study's tables compare the conic tracker with it)."""
+    import argparse
+
+    from estimator.cornea import CORNEA_MODELS
+
+    names = tuple(t.strip() for t in str(text).split(","))
+    bad = [n for n in names if n not in CORNEA_MODELS]
+    if bad or not names or names[0] != "sphere" or len(set(names)) != len(names):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected sphere or sphere,conic (models {', '.join(CORNEA_MODELS)})")
+    return names
+
+
 def cmd_study_aspheric(args) -> int:
     from scet_render.study.aspheric import parse_asphericities, run_aspheric_study
-    from scet_render.study.aspheric_report import accuracy_table
+    from scet_render.study.aspheric_report import accuracy_table, conic_table
 
     qs = parse_asphericities(args.q)
     bars = StageBars()
     try:
         conditions, _, path = run_aspheric_study(args.scene, quick=args.quick, out_dir=args.out,
                                                  report_dir=args.report_dir, asphericities=qs,
-                                                 seed=args.seed, progress=bars.update)
+                                                 seed=args.seed, progress=bars.update,
+                                                 cornea_models=tuple(args.cornea_models))
     finally:
         bars.close()
-    print(accuracy_table(conditions))
+    print(accuracy_table([c for c in conditions if c.cornea_model == "sphere"]))
+    if any(c.cornea_model == "conic" for c in conditions):
+        print(conic_table(conditions))
     print(f"report written to {path}")
     return 0
 
@@ -198,8 +216,12 @@ def add_parsers(sub) -> None:
     a.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
     a.add_argument("--out", type=Path, default=Path("out/aspheric"), help="work folder for renders")
     a.add_argument("--report-dir", type=Path, default=Path("reports"))
+    a.add_argument("--cornea-models", type=cornea_models, default=("sphere", "conic"),
+                   help="the trackers to run on the same renders, comma separated: sphere (the "
+                        "paper's), conic (Q calibrated; scet calibrate --cornea-model conic); "
+                        "default sphere,conic")
     a.set_defaults(func=cmd_study_aspheric)
 
 
 __all__ = ["add_parsers", "rendered_band_shares", "cmd_design_lights", "cmd_study_events",
-           "cmd_study_aspheric"]
+           "cmd_study_aspheric", "cornea_models"]

@@ -1,7 +1,8 @@
 """Calibration (Sec. 2.4-2.5): lighting pose and corneal radius, eye centre and orbit
 radius, the gaze mappings, and the calibration file.
 
-Modules: ``lighting``, ``orbit``, ``mapping`` (Eq. (1) and the second-order polynomials),
+Modules: ``lighting``, ``conic`` (the joint fit with the conic constant Q, and identification
+on the calibrated conic), ``orbit``, ``mapping`` (Eq. (1) and the second-order polynomials),
 ``result`` (:class:`Calibration`, versioned JSON), ``checks`` (is a calibration plausible).
 """
 
@@ -13,6 +14,7 @@ from .checks import (
     RADIUS_SD_RANGE,
     calibration_warnings,
 )
+from .conic import IDENTIFY_ROUNDS, Q_BOUNDS, calibrate_joint_conic, identify_on_conic
 from .lighting import (
     CORNEA_RADIUS_BOUNDS_M,
     CORNEA_RADIUS_INIT_M,
@@ -37,5 +39,6 @@ __all__ = [
     "corrected_lights", "LightingFit", "calibrate_lighting_per_frame",
     "calibrate_lighting_joint", "calibrate_joint", "MAPPING_TERMS", "RANK_RTOL", "GazeMapping",
     "fit_gaze_mapping", "distance_reading", "ORBIT_RADIUS_BOUNDS_M", "OrbitFit",
-    "orbit_law_of_sines", "orbit_sphere_fit", "Calibration"
+    "orbit_law_of_sines", "orbit_sphere_fit", "Calibration", "Q_BOUNDS", "calibrate_joint_conic",
+    "IDENTIFY_ROUNDS", "identify_on_conic"
 ]

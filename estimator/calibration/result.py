@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ..checks import Doc, parse_json
+from ..cornea import ASPHERICITY_RANGE, CORNEA_MODELS, check_conic
 from ..errors import InputError
 from ..formats import CALIBRATION_FORMAT, CALIBRATION_VERSION, check_format
 from ..geometry import RigidPose
@@ -70,6 +71,13 @@ class Calibration:
         How well it fitted, JSON-ready: ``rms_px`` (glint residual), ``frames_used``,
         ``frames_total`` and ``warnings`` (the failed plausibility checks of
         :func:`estimator.calibration.checks.calibration_warnings`; empty when plausible).
+    cornea_model : {"sphere", "conic"}
+        The cornea the estimators model: the paper's sphere of radius r_c, or a conic of
+        revolution about the optical axis (c_e through the cornea centre) with apex radius r_c
+        and conic constant ``cornea_asphericity`` (:mod:`estimator.cornea.conic`). Written to
+        the file only when ``"conic"`` (a spherical calibration's file is as before).
+    cornea_asphericity : float
+        Q in (-1, 1]; 0 for the sphere.
     """
 
     lighting_correction: RigidPose = field(default_factory=RigidPose)
@@ -79,8 +87,15 @@ class Calibration:
     mappings: dict = field(default_factory=dict)
     methods: dict = field(default_factory=dict)
     quality: dict = field(default_factory=dict)
+    cornea_model: str = "sphere"
+    cornea_asphericity: float = 0.0
 
     def __post_init__(self):
+        model, q = check_conic(self.cornea_model, self.cornea_asphericity)
+        object.__setattr__(self, "cornea_model", model)
+        object.__setattr__(self, "cornea_asphericity", q)
+        if model == "conic" and not np.isfinite(np.asarray(self.eye_center_m, dtype=float)).all():
+            raise ValueError("a conic cornea needs the eye centre (its optical axis)")
         ce = np.asarray(self.eye_center_m, dtype=np.float64).reshape(3).copy()
         ce.setflags(write=False)
         object.__setattr__(self, "eye_center_m", ce)
@@ -113,6 +128,11 @@ class Calibration:
                    float("nan") if orbit is None else orbit.orbit_radius_m, mappings or {}, methods)
 
     @property
+    def conic(self) -> bool:
+        """Whether the estimators model the cornea as a conic (``cornea_model == "conic"``)."""
+        return self.cornea_model == "conic"
+
+    @property
     def has_orbit(self) -> bool:
         return bool(np.isfinite(self.eye_center_m).all() and np.isfinite(self.orbit_radius_m))
 
@@ -133,11 +153,14 @@ class Calibration:
 
     def to_dict(self) -> dict:
         finite = self.has_orbit
+        cornea = ({"cornea_model": self.cornea_model, "cornea_asphericity": self.cornea_asphericity}
+                  if self.conic else {})
         return {
             "format": CALIBRATION_FORMAT, "version": CALIBRATION_VERSION,
             "lighting_correction": {"rotation": self.lighting_correction.rotation.tolist(),
                                     "translation_m": self.lighting_correction.translation_m.tolist()},
             "cornea_radius_m": self.cornea_radius_m,
+            **cornea,
             "eye_center_m": self.eye_center_m.tolist() if finite else None,
             "orbit_radius_m": self.orbit_radius_m if finite else None,
             "mappings": {k: v.to_dict() for k, v in self.mappings.items()},
@@ -162,6 +185,15 @@ class Calibration:
             raise lc.error("rotation", str(exc)) from None
         lo, hi = FILE_RANGES["cornea_radius_m"]
         radius = doc.number("cornea_radius_m", lo=lo, hi=hi)
+        model = doc.string("cornea_model", choices=CORNEA_MODELS, required=False, default="sphere")
+        q = doc.number("cornea_asphericity", lo=ASPHERICITY_RANGE[0], hi=ASPHERICITY_RANGE[1],
+                       required=False, default=0.0)
+        if q == ASPHERICITY_RANGE[0]:
+            raise doc.error("cornea_asphericity", "expected a value in (-1, 1] (Q = -1 is a "
+                                                  "paraboloid, no closed cornea), got -1")
+        if model == "sphere" and q != 0.0:
+            raise doc.error("cornea_asphericity", f"a 'sphere' cornea_model has no asphericity, "
+                                                  f"got {q!r} (set cornea_model to 'conic')")
         center = doc.array("eye_center_m", (3,), lo=-FILE_RANGES["eye_center_m"],
                            hi=FILE_RANGES["eye_center_m"], required=False,
                            default=np.full(3, np.nan))
@@ -183,8 +215,10 @@ class Calibration:
             skipped = quality.obj("mappings_skipped", required=False)
             for name in skipped.keys() if skipped else ():
                 skipped.string(name)
+        if model == "conic" and not np.isfinite(center).all():
+            raise doc.error("eye_center_m", "a 'conic' cornea_model needs the eye centre")
         return cls(pose, radius, center, r_co, mappings, methods.data if methods else {},
-                   quality.data if quality else {})
+                   quality.data if quality else {}, model, q)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=1)

@@ -131,16 +131,19 @@ def aspheric_scene(setup: Setup, q: float, scene_text: str | None = None) -> tup
 # --------------------------------------------------------------------------- feature level only
 
 
-def feature_level_model_error(setup: Setup, q: float, *, grid=(24, 15)) -> dict:
-    """The spherical tracker on noise-free glints of a conic cornea: calibration on the
-    simulator's 5x5 pattern, both gaze methods on the ``grid`` targets with every visible
-    glint. Nothing but the model differs from the truth.
+def feature_level_model_error(setup: Setup, q: float, *, grid=(24, 15),
+                              cornea_model: str = "sphere") -> dict:
+    """The tracker on noise-free glints of a conic cornea: calibration on the simulator's 5x5
+    pattern, both gaze methods on the ``grid`` targets with every visible glint. Nothing but
+    the model differs from the truth. ``cornea_model``: the tracker's (``"conic"``: Q
+    calibrated with the rest, ``estimator.folders.calibrate_from_glints``).
 
     Returns
     -------
     dict
         ``cornea_radius_m``, ``calibration_rms_px``, ``eye_center_error_m`` (calibrated c_e
-        minus the true one, norm), and per method (``"polynomial"``, ``"geometric"``): a
+        minus the true one, norm), ``cornea_asphericity`` (the calibration's Q), and per method
+        (``"polynomial"``, ``"geometric"``): a
         dict of ``errors_deg`` (k,) and ``rms_px`` (k,) (NaN where the fit failed).
     """
     from estimator.folders import calibrate_from_glints
@@ -153,7 +156,7 @@ def feature_level_model_error(setup: Setup, q: float, *, grid=(24, 15)) -> dict:
     cal_targets = parse_targets("calib:5x5", s)
     obs = simulate_glints(s, cal_targets, noise_px=0.0)
     g = np.where(obs.visible[..., None], obs.glints_px, np.nan)
-    cal = calibrate_from_glints(s, g, cal_targets)
+    cal = calibrate_from_glints(s, g, cal_targets, cornea_model=cornea_model)
     targets = parse_targets(f"grid:{grid[0]}x{grid[1]}", s)
     obs = simulate_glints(s, targets, noise_px=0.0)
     g = np.where(obs.visible[..., None], obs.glints_px, np.nan)
@@ -161,7 +164,8 @@ def feature_level_model_error(setup: Setup, q: float, *, grid=(24, 15)) -> dict:
     mapping = sorted(k for k in cal.mappings if k.startswith("eq1"))[-1]
     out = {"cornea_radius_m": cal.cornea_radius_m,
            "calibration_rms_px": float(cal.quality["rms_px"]),
-           "eye_center_error_m": float(np.linalg.norm(cal.eye_center_m - s.eye.rotation_center_m))}
+           "eye_center_error_m": float(np.linalg.norm(cal.eye_center_m - s.eye.rotation_center_m)),
+           "cornea_asphericity": cal.cornea_asphericity}
     for method in ("polynomial", "geometric"):
         if method == "polynomial":
             est = polynomial_gaze(s, cal, g, mapping=mapping, problems=problems)
@@ -208,6 +212,10 @@ class AsphericCondition:
     reasons : dict
         method -> {reason: count}.
     timings_s : dict
+    cornea_model : str
+        The tracker's cornea (``"sphere"``, or ``"conic"``: Q calibrated).
+    cornea_asphericity : float
+        The calibration's Q (0 for the sphere).
     """
 
     q: float
@@ -225,9 +233,11 @@ class AsphericCondition:
     timings_s: dict
     all_glints_deg: dict
     gaze_targets: int
+    cornea_model: str = "sphere"
+    cornea_asphericity: float = 0.0
 
 
-def condition_from_run(run, q: float, lids: bool) -> AsphericCondition:
+def condition_from_run(run, q: float, lids: bool, cornea_model: str = "sphere") -> AsphericCondition:
     """Per band position scores and fit residuals of a :class:`ValidationRun` (one strobe
     setting)."""
     from estimator.gaze import calibrated_problems, geometric_gaze, polynomial_gaze
@@ -281,13 +291,15 @@ def condition_from_run(run, q: float, lids: bool) -> AsphericCondition:
         float(q), bool(lids), stats, errors, cal.cornea_radius_m, float(cal.quality["rms_px"]),
         float(np.linalg.norm(cal.eye_center_m - sset.eye.rotation_center_m)),
         run.noise_by_ppf[ppf], fit, model, rejected, reasons, dict(run.timings), every,
-        len({tuple(np.round(lb.target_m, 6)) for lb in by_key.values()}))
+        len({tuple(np.round(lb.target_m, 6)) for lb in by_key.values()}), cornea_model,
+        cal.cornea_asphericity)
 
 
 def run_aspheric_study(scene=None, *, quick: bool, out_dir, report_dir,
                        asphericities=DEFAULT_ASPHERICITIES, seed: int = 0,
                        progress: Callable[[str, int, int], None] | None = None,
-                       config: ValidationConfig | None = None, lids=LID_CONDITIONS):
+                       config: ValidationConfig | None = None, lids=LID_CONDITIONS,
+                       cornea_models=("sphere",)):
     """Render, calibrate, track and score every (Q, lids) condition; the feature-level model
     error of every Q; write ``aspheric.md`` (module docstring).
 
@@ -308,10 +320,14 @@ def run_aspheric_study(scene=None, *, quick: bool, out_dir, report_dir,
         Overrides the mode's (one strobe setting).
     lids : sequence
         Eyelid openness per lid condition (None: no lids).
+    cornea_models : sequence of str
+        The trackers run on the same renders: ``"sphere"`` first, then optionally ``"conic"``
+        (:func:`scet_render.validate.validate_setup`'s ``cornea_model``).
 
     Returns
     -------
     (list of AsphericCondition, dict q -> feature-level dict, Path of the report)
+        The feature-level dict of ``"conic"`` is under the key ``(q, "conic")``.
     """
     from ..validate import validate_setup
     from .aspheric_report import write_aspheric_report
@@ -320,6 +336,10 @@ def run_aspheric_study(scene=None, *, quick: bool, out_dir, report_dir,
     if len(cfg.pulses_per_frame) != 1:
         raise ValueError("the aspheric study runs one strobe setting (pulses_per_frame of one "
                          "value)")
+    models = tuple(cornea_models)
+    if not models or models[0] != "sphere" or len(set(models)) != len(models) or \
+            not set(models) <= {"sphere", "conic"}:
+        raise ValueError(f"cornea_models must be ('sphere',) or ('sphere', 'conic'), got {models}")
     qs = tuple(float(q) for q in asphericities)
     if not qs:
         raise ValueError("asphericities: at least one conic constant is needed")
@@ -330,6 +350,8 @@ def run_aspheric_study(scene=None, *, quick: bool, out_dir, report_dir,
         derived, text = aspheric_scene(base, q)
         t = time.perf_counter()
         features[q] = feature_level_model_error(derived, q)
+        for model in models[1:]:
+            features[(q, model)] = feature_level_model_error(derived, q, cornea_model=model)
         if progress is not None:
             progress(f"Q={q:g} feature level", 1, 1)
         sim_s = time.perf_counter() - t
@@ -337,12 +359,13 @@ def run_aspheric_study(scene=None, *, quick: bool, out_dir, report_dir,
             name = f"q{q:+.3f}_" + ("lids" if openness is not None else "nolids")
             stage = ((lambda tag: (lambda s, d, n: progress(f"{tag} {s}", d, n)))(name)
                      if progress is not None else None)
-            run = validate_setup(scaled_setup(derived, cfg.scale), cfg, Path(out_dir) / name,
-                                 seed=seed, progress=stage, eyelid_openness=openness,
-                                 scene_text=text)
-            c = condition_from_run(run, q, openness is not None)
-            c.timings_s["feature_level"] = sim_s
-            conditions.append(c)
+            for model in models:
+                run = validate_setup(scaled_setup(derived, cfg.scale), cfg, Path(out_dir) / name,
+                                     seed=seed, progress=stage, eyelid_openness=openness,
+                                     scene_text=text, cornea_model=model)
+                c = condition_from_run(run, q, openness is not None, model)
+                c.timings_s["feature_level"] = sim_s
+                conditions.append(c)
     wall_s = time.perf_counter() - t0
     path = write_aspheric_report(Path(report_dir), conditions, features, cfg, base, wall_s, seed)
     return conditions, features, path

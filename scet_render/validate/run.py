@@ -202,7 +202,7 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
 def validate_setup(setup: Setup, cfg: ValidationConfig, out_dir, *, seed: int = 0,
                    progress: Callable[[str, int, int], None] | None = None,
                    eyelid_openness: float | None = 1.0,
-                   scene_text: str | None = None) -> ValidationRun:
+                   scene_text: str | None = None, cornea_model: str = "sphere") -> ValidationRun:
     """Steps 1-3 of the module docstring on a setup already at the render size (no report):
     what :func:`run_validation` runs on its scene, and ``scet study aspheric`` on derived eyes.
 
@@ -220,6 +220,10 @@ def validate_setup(setup: Setup, cfg: ValidationConfig, out_dir, *, seed: int = 
     scene_text : str, optional
         The scene TOML the datasets' manifests record; needed when ``setup`` is derived in
         memory (its text is not that of ``setup.source``, which is read otherwise).
+    cornea_model : {"sphere", "conic"}
+        The tracker's cornea (:func:`estimator.folders.calibrate_from_folder`); a conic run
+        writes ``calibration_conic.json`` and ``samples_<method>_p<ppf>_conic.csv`` beside the
+        sphere's, on the same renders.
 
     Returns
     -------
@@ -249,8 +253,9 @@ def validate_setup(setup: Setup, cfg: ValidationConfig, out_dir, *, seed: int = 
     timings["render"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    calibration = calibrate_from_folder(cal_dir, setup)
-    save_calibration(calibration, out / "calibration.json")
+    tag = "" if cornea_model == "sphere" else f"_{cornea_model}"
+    calibration = calibrate_from_folder(cal_dir, setup, cornea_model=cornea_model)
+    save_calibration(calibration, out / f"calibration{tag}.json")
     timings["calibrate"] = time.perf_counter() - t
     mapping = sorted(k for k in calibration.mappings if k.startswith("eq1"))[-1]
 
@@ -268,7 +273,7 @@ def validate_setup(setup: Setup, cfg: ValidationConfig, out_dir, *, seed: int = 
         resid_p = []
         for method in ("polynomial", "geometric"):
             t = time.perf_counter()
-            csv = out / f"samples_{method}_p{ppf}.csv"
+            csv = out / f"samples_{method}_p{ppf}{tag}.csv"
             if method == "polynomial":
                 summary = track_folder(test_dir, sset, calibration, csv, method=method,
                                        mapping=mapping,

@@ -69,6 +69,28 @@ def test_feature_level_model_error_grows_with_q():
     assert np.isfinite(out[-0.45]["geometric"]["errors_deg"]).mean() > 0.95
 
 
+def test_feature_level_conic_tracker_removes_the_model_error():
+    base = load_scene("paper_sim")
+    out = feature_level_model_error(base, -0.25, grid=(12, 8), cornea_model="conic")
+    # Noise-free conic glints, Q calibrated: nothing but the solvers' tolerances is left
+    # (measured 0.000 deg geometric; polynomial 0.006 deg, the Eq. (1) mapping's own error on
+    # the sphere too).
+    assert abs(out["cornea_asphericity"] + 0.25) < 1e-6
+    assert np.nanmax(out["geometric"]["errors_deg"]) < 1e-3
+    sphere = feature_level_model_error(base, 0.0, grid=(12, 8))
+    assert abs(np.nanmean(out["polynomial"]["errors_deg"])
+               - np.nanmean(sphere["polynomial"]["errors_deg"])) < 1e-3
+
+
+@pytest.mark.parametrize("bad", ["conic", "sphere,ellipse", "sphere,sphere"])
+def test_bad_cornea_models_exit_2_before_rendering(capsys, tmp_path, bad):
+    assert main(["study", "aspheric", "--cornea-models", bad, "--quick", "--out",
+                 str(tmp_path / "w"), "--report-dir", str(tmp_path / "r")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert "--cornea-models" in err[-1], err
+    assert not (tmp_path / "w").exists()
+
+
 def test_tiny_rendered_study(tmp_path):
     pytest.importorskip("mitsuba")
     from scet_render.study.aspheric import run_aspheric_study
@@ -78,7 +100,7 @@ def test_tiny_rendered_study(tmp_path):
                            pulses_per_frame=(16,))
     conditions, features, path = run_aspheric_study(
         quick=True, out_dir=tmp_path / "w", report_dir=tmp_path / "r", asphericities=(0.0, -0.25),
-        config=cfg, lids=(1.0,))
+        config=cfg, lids=(1.0,), cornea_models=("sphere", "conic"))
     assert path.is_file() and (tmp_path / "r" / "figures" / "aspheric_errors.png").is_file()
     text = path.read_text()
     assert "Lashes and moving lids are not modelled yet" in text
@@ -86,7 +108,10 @@ def test_tiny_rendered_study(tmp_path):
                           .read_text())
     assert "cornea_asphericity = -0.25" in manifest["scene"]["toml"]
     assert manifest["render"]["renderer"]["scene_options"]["eyelid_openness"] == 1.0
-    by_q = {c.q: c for c in conditions}
+    assert "## The conic-aware tracker" in text
+    conic = [c for c in conditions if c.cornea_model == "conic"]
+    assert len(conic) == 2 and all(np.isfinite(c.cornea_asphericity) for c in conic)
+    by_q = {c.q: c for c in conditions if c.cornea_model == "sphere"}
     geo0 = by_q[0.0].stats[("rendered", "geometric", "all")]
     geo1 = by_q[-0.25].stats[("rendered", "geometric", "all")]
     # Means (index 2): 0.11 deg on the sphere, 1.13 deg at Q = -0.25 (seed 0); the model error
@@ -95,4 +120,4 @@ def test_tiny_rendered_study(tmp_path):
     # The rendered sphere fit's residual grows with the model error (0.23 -> 0.90 px median).
     fit = {q: np.median(c.fit_rms_px["geometric"]) for q, c in by_q.items()}
     assert fit[-0.25] > fit[0.0]
-    assert set(features) == {0.0, -0.25}
+    assert set(features) == {0.0, -0.25, (0.0, "conic"), (-0.25, "conic")}

@@ -1,0 +1,209 @@
+"""The joint calibration on a conic cornea: Q calibrated with the rest of the geometry.
+
+:func:`estimator.calibration.calibrate_joint` (``angles="targets"``) fits r_c, the lighting
+pose, c_e and r_co to every calibration frame's glints with a spherical cornea. On a conic
+cornea (conic constant Q about the optical axis, :mod:`estimator.cornea.conic`) the sphere
+absorbs part of Q into r_c and c_e and leaves the rest as residual (``reports/aspheric.md``:
+r_c 8.116 mm for a 7.80 mm apex at Q = -0.25). :func:`calibrate_joint_conic` starts from that
+spherical answer and fits the same 11 unknowns plus Q (12) to the exact conic reflections
+(:func:`estimator.cornea.conic_glints`; the optical axis of frame i from c_e toward its
+target, the cornea centre c_e + r_co (T_i - c_e)/|T_i - c_e|, as for the sphere), scipy's
+TRF with the sphere's bounds and Q in :data:`Q_BOUNDS`, the Jacobian by central differences
+(all 25 unknowns' poses in one conic projection per evaluation).
+
+Q is determined by the glints far from the apex: near the axis a conic is its apex sphere to
+second order. The 5x5 pattern's targets turn the eye by up to ~20 deg, which puts the lights'
+reflections 5-40 deg from the axis, where Q = -0.25 moves them by pixels.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from ..cornea import conic_glints
+from ..geometry import Camera, as_points, rotation_from_vector
+from .lighting import LightingFit, _check_frames, _pose_bounds, calibrate_joint, pose_correction
+from .lighting import CORNEA_RADIUS_BOUNDS_M, POSE_BOUND_M, POSE_BOUND_RAD
+from .orbit import ORBIT_RADIUS_BOUNDS_M, OrbitFit
+
+#: Bounds of the calibrated conic constant: the scene's (-1, 1] kept 0.05 away from the
+#: paraboloid (Q = -1), where the ellipsoid's equator runs to infinity. Real corneas: Q =
+#: -0.26 +/- 0.18 (Kiely et al. 1982), so the bound is 4 SD beyond the most prolate one.
+Q_BOUNDS = (-0.95, 1.0)
+#: Robust loss of the conic calibration (scipy's ``least_squares``): the glints it is given
+#: were identified by the spherical matcher, which on a Q = -0.45 cornea gets a quarter of them
+#: wrong (110 of 416 on the quick study's frames, 92 of 598 at Q = -0.25), each pulling the
+#: squares far more than the right ones. soft_l1 with a 1 px scale counts residuals well below
+#: 1 px (0.2 px of detection noise at 320 x 240) as squares and the wrong ones, pixels off,
+#: about linearly.
+ROBUST_LOSS, ROBUST_SCALE_PX = "soft_l1", 1.0
+#: Central-difference step of each unknown, in its unit: r_c, translation, c_e, r_co (m),
+#: rotation (rad), Q. 1e-8 m moves glints by ~5e-5 px; the conic's glints settle to ~5e-13 px.
+_H = {"length_m": 1e-8, "angle_rad": 1e-6, "q": 1e-6}
+
+
+class _ConicJoint:
+    """Stacked conic residuals over m frames: x = [r_c, rotvec (3), translation (3), c_e (3),
+    r_co, Q]."""
+
+    def __init__(self, camera, lights, glints, mask, targets):
+        self.camera, self.lights, self.glints, self.mask = camera, lights, glints, mask
+        self.targets = targets
+        self.pivot = lights.mean(axis=0)
+        h = np.array([_H["length_m"]] + [_H["angle_rad"]] * 3 + [_H["length_m"]] * 7 + [_H["q"]])
+        self.h = h
+        self._cache_x, self._cache = None, None
+
+    def glints_at(self, X):
+        """Glints (k, m, n, 2) of k parameter vectors X (k, 12), in one conic projection."""
+        k, m, n = X.shape[0], self.glints.shape[0], self.lights.shape[0]
+        g = np.empty((k, m, n, 2))
+        # One call per distinct (r_c, Q) is what project_glints_conic takes; group by them.
+        keys = {}
+        for i, x in enumerate(X):
+            keys.setdefault((x[0], x[11]), []).append(i)
+        for (r_c, q), idx in keys.items():
+            C, L, ce = [], [], []
+            for i in idx:
+                x = X[i]
+                R = rotation_from_vector(x[1:4])
+                posed = (self.lights - self.pivot) @ R.T + self.pivot + x[4:7]
+                L.append(np.broadcast_to(posed, (m, n, 3)))
+                u = self.targets - x[7:10]
+                u = u / np.linalg.norm(u, axis=1, keepdims=True)
+                C.append(x[7:10] + x[10] * u)
+                ce.append(np.broadcast_to(x[7:10], (m, 3)))
+            C, L, ce = np.concatenate(C), np.concatenate(L), np.concatenate(ce)
+            got = conic_glints(self.camera, C, ce, r_c, q, L)
+            g[idx] = got.reshape(len(idx), m, n, 2)
+        return g
+
+    def _eval(self, x):
+        if self._cache_x is not None and np.array_equal(x, self._cache_x):
+            return self._cache
+        E = np.concatenate([np.zeros((1, x.size)), np.diag(self.h), -np.diag(self.h)])
+        g = self.glints_at(x[None] + E)
+        r = g - self.glints[None]
+        res = r[0][self.mask]
+        # A glint that does not converge at some nearby pose is left out of every column.
+        fin = np.isfinite(r).all(axis=(0, -1))[self.mask]
+        res = np.where(fin[:, None], res, 0.0).ravel()
+        p = x.size
+        J = (r[1:p + 1] - r[p + 1:])[:, self.mask] / (2 * self.h[:, None, None])
+        J = np.where(fin[None, :, None], J, 0.0).reshape(p, -1).T
+        self._cache_x, self._cache = x.copy(), (res, J)
+        return res, J
+
+    def residuals(self, x):
+        return self._eval(x)[0]
+
+    def jacobian(self, x):
+        return self._eval(x)[1]
+
+
+def calibrate_joint_conic(camera: Camera, lights_world_m, glints_px, targets_m, mask=None, *,
+                          center0_m, radius_bounds_m=CORNEA_RADIUS_BOUNDS_M,
+                          rotation_bound_rad: float = POSE_BOUND_RAD,
+                          translation_bound_m: float = POSE_BOUND_M,
+                          orbit_bounds_m=ORBIT_RADIUS_BOUNDS_M, q_bounds=Q_BOUNDS,
+                          max_nfev: int = 100) -> tuple[LightingFit, OrbitFit, float]:
+    """r_c, lighting pose, c_e, r_co and the conic constant Q fitted at once to the glints of
+    every frame (module docstring), started from :func:`calibrate_joint`'s spherical answer.
+
+    Parameters as :func:`calibrate_joint` (``angles="targets"``), plus ``q_bounds``.
+
+    Returns
+    -------
+    (LightingFit, OrbitFit, float)
+        The lighting (method ``"joint_targets_conic"``; ``rms_px`` the conic residual), the
+        orbit, and Q.
+    """
+    sphere, orbit = calibrate_joint(camera, lights_world_m, glints_px, targets_m, mask,
+                                    center0_m=center0_m, radius_bounds_m=radius_bounds_m,
+                                    rotation_bound_rad=rotation_bound_rad,
+                                    translation_bound_m=translation_bound_m,
+                                    orbit_bounds_m=orbit_bounds_m)
+    lights, glints, m = _check_frames(lights_world_m, glints_px, mask)
+    T = as_points(targets_m, "targets_m")
+    lo, hi = _pose_bounds(radius_bounds_m, rotation_bound_rad, translation_bound_m)
+    lo = np.concatenate([lo, np.full(3, -np.inf), [orbit_bounds_m[0]], [q_bounds[0]]])
+    hi = np.concatenate([hi, np.full(3, np.inf), [orbit_bounds_m[1]], [q_bounds[1]]])
+    x0 = np.concatenate([[sphere.cornea_radius_m], sphere.rotvec_rad, sphere.translation_m,
+                         orbit.eye_center_m, [orbit.orbit_radius_m], [0.0]])
+    x0 = np.clip(x0, np.nextafter(lo, hi), np.nextafter(hi, lo))
+    joint = _ConicJoint(camera, lights, glints, m, T)
+    sol = least_squares(joint.residuals, x0, jac=joint.jacobian, bounds=(lo, hi), method="trf",
+                        x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12, max_nfev=max_nfev,
+                        loss=ROBUST_LOSS, f_scale=ROBUST_SCALE_PX)
+    x = sol.x
+    r_c, w, t, ce = float(x[0]), x[1:4].copy(), x[4:7].copy(), x[7:10].copy()
+    r_co, q = float(x[10]), float(x[11])
+    u = T - ce
+    C = ce + r_co * u / np.linalg.norm(u, axis=1, keepdims=True)
+    rms = float(np.sqrt(np.sum(sol.fun ** 2) / max(m.sum(), 1)))
+    light = LightingFit(pose_correction(w, t, joint.pivot), w, t, joint.pivot.copy(), r_c,
+                        float("nan"), C, np.full(len(T), r_c), rms, "joint_targets_conic",
+                        bool(sol.status > 0))
+    orbit = OrbitFit(ce, r_co, 0.0, int(sol.nfev), "joint_targets_conic", bool(sol.status > 0))
+    return light, orbit, q
+
+
+#: Rounds of re-identification of the calibration glints on the calibrated conic
+#: (:func:`identify_on_conic`) and recalibration. The spherical matcher that identifies them
+#: first predicts a Q = -0.25 cornea's oblique glints up to ~15 px off at 320 x 240: measured on
+#: the quick study's calibration frames, 92 of 598 identities were wrong (8 of 20 frames),
+#: which left Q at -0.186, r_c at 7.52 mm and a 1.44 px RMS; with the right identities the same
+#: fit gives Q = -0.252, r_c = 7.82 mm, 0.20 px. A round re-assigns every detection; the loop
+#: ends earlier when the identities no longer change.
+IDENTIFY_ROUNDS = 3
+
+
+def identify_on_conic(calibration, setup, detections, targets_m, *, gate_px: float) -> np.ndarray:
+    """Identify the glints of calibration frames on a calibrated conic cornea.
+
+    Each frame's eye fixates its target: the cornea centre is c_e + r_co (T - c_e)/|T - c_e|,
+    the optical axis from c_e through it. Every light's glint is predicted on the conic
+    (exact reflection, the cap ending ``setup.eye.limbus_depth_m`` behind the apex, inside the
+    image), and the frame's detections are assigned to the predictions by the optimal
+    assignment of their distances (scipy's ``linear_sum_assignment``), pairs further apart
+    than ``gate_px`` left unmatched.
+
+    Parameters
+    ----------
+    calibration : Calibration
+        With ``cornea_model == "conic"``.
+    setup : Setup
+        Camera, nominal lights and eye (its limbus depth).
+    detections : sequence of (k_i, 2) float
+        Every detection of each frame (px).
+    targets_m : (m, 3) float
+    gate_px : float
+
+    Returns
+    -------
+    (m, n, 2) float
+        The identified detection of each light, NaN where none.
+    """
+    from scipy.optimize import linear_sum_assignment
+
+    from ..geometry import project_glints_conic
+
+    T = as_points(targets_m, "targets_m").reshape(-1, 3)
+    ce, r_co, r_c = calibration.eye_center_m, calibration.orbit_radius_m, calibration.cornea_radius_m
+    u = (T - ce) / np.linalg.norm(T - ce, axis=1, keepdims=True)
+    lights = calibration.lights_world_m(setup.lights_world_m)
+    pred, visible = project_glints_conic(setup.camera, ce + (r_co + r_c) * u, u, r_c,
+                                         calibration.cornea_asphericity, lights,
+                                         limbus_depth_m=setup.eye.limbus_depth_m)
+    out = np.full(pred.shape, np.nan)
+    for i, det in enumerate(detections):
+        det = np.asarray(det, dtype=np.float64).reshape(-1, 2)
+        idx = np.flatnonzero(visible[i])
+        if det.shape[0] == 0 or idx.size == 0:
+            continue
+        dist = np.linalg.norm(pred[i, idx, None, :] - det[None], axis=-1)
+        rows, cols = linear_sum_assignment(np.where(dist <= gate_px, dist, 1e6))
+        keep = dist[rows, cols] <= gate_px
+        out[i, idx[rows[keep]]] = det[cols[keep]]
+    return out
