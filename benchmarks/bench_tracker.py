@@ -56,7 +56,7 @@ import estimator.matching.follow as follow_module  # noqa: E402
 import estimator.matching.kernels as match_kernels  # noqa: E402
 import estimator.tracker as tracker_module  # noqa: E402
 from estimator.folders import iter_folder  # noqa: E402
-from estimator.glints import GlintDetections, GlintDetector  # noqa: E402
+from estimator.glints import GlintDetector  # noqa: E402
 from estimator.scene import load_scene  # noqa: E402
 from estimator.tracker import OUT_OF_REACH, Tracker  # noqa: E402
 from tests.estimator.simulated import ground_truth_calibration  # noqa: E402
@@ -68,7 +68,7 @@ PI_FACTOR, PI_RANGE = 15.0, (10.0, 30.0)
 PI_SOURCE = "shared/HARDWARE.md Sec. 12 (planning rule: x86 single-thread time x 15, 10-30)"
 #: Whether the matcher's compiled steps run (Numba installed, JIT on).
 KERNELS = match_kernels.ENABLED
-STAGES = ("detect", "group", "predict", "assign", "fit", "map", "search", "other")
+STAGES = ("detect", "group", "predict", "assign", "fit", "map", "search", "prior", "other")
 
 
 def synthetic_frames(setup, n: int, rng):
@@ -99,8 +99,9 @@ def same(a, b) -> bool:
 
 
 class _Timed:
-    """Wraps a callable, adding its seconds to ``totals[stage]`` (not inside a search, whose
-    predictions and assignments count as the search's)."""
+    """Wraps a callable, adding its seconds to ``totals[stage]`` (not inside a search or a
+    sparse band's identification from the prior, whose predictions and assignments count as
+    theirs)."""
 
     def __init__(self, fn, totals, stage):
         self.fn, self.totals, self.stage = fn, totals, stage
@@ -108,7 +109,7 @@ class _Timed:
     def __call__(self, *a, **k):
         if self.totals["_searching"]:
             return self.fn(*a, **k)
-        self.totals["_searching"] = self.stage == "search"
+        self.totals["_searching"] = self.stage in ("search", "prior")
         t = time.perf_counter()
         try:
             return self.fn(*a, **k)
@@ -134,11 +135,12 @@ def breakdown(setup, cal, method, frames) -> dict:
     m._assign = _Timed(m._assign, totals, "assign")
     m._final_assign = _Timed(m._final_assign, totals, "assign")
     saved = (follow_module.fit_small, tracker_module.fit_small,
-             tracker_module.screen_intersection, GlintDetections.of_strobe, m.match)
+             tracker_module.screen_intersection, m.match)
     follow_module.fit_small = tracker_module.fit_small = _Timed(saved[0], totals, "fit")
     tracker_module.screen_intersection = _Timed(saved[2], totals, "map")
-    GlintDetections.of_strobe = lambda self, j, _f=saved[3]: _Timed(_f, totals, "group")(self, j)
+    tr._of_strobe = _Timed(tr._of_strobe, totals, "group")
     m.match = _Timed(m.match, totals, "search")
+    m.match_near = _Timed(m.match_near, totals, "prior")
     if tr._map is not None:
         tr._map = _TimedMapping(tr._map, totals)
     try:
@@ -146,8 +148,8 @@ def breakdown(setup, cal, method, frames) -> dict:
         samples, _ = run(tr, frames)
         wall = time.perf_counter() - t
     finally:
-        (follow_module.fit_small, tracker_module.fit_small, tracker_module.screen_intersection,
-         GlintDetections.of_strobe) = saved[:4]
+        (follow_module.fit_small, tracker_module.fit_small,
+         tracker_module.screen_intersection) = saved[:3]
     totals["other"] = wall - sum(totals[s] for s in STAGES if s != "other")
     return {"samples": len(samples), "wall": wall, **totals}
 

@@ -32,9 +32,10 @@ RESIDUAL_TOO_LARGE = "residual_too_large"
 #: A band's own identification puts the eye further from the previous sample than it can turn
 #: in the time between them (``estimator.tracker.JUMP_AGE_S``, ``JUMP_SLACK_DEG``).
 IMPLAUSIBLE_JUMP = "implausible_jump"
-#: No eye rotation within that turn of a sample under ``JUMP_AGE_S`` old puts ``MIN_GLINTS``
-#: glints on the band's rows (the top rows of a frame while the eye looks down): the band is not searched (a search could match it only at a rotation
-#: :data:`IMPLAUSIBLE_JUMP` rejects) and is left to the prior.
+#: No eye rotation within that turn of a sample under ``JUMP_AGE_S`` old can have
+#: ``MIN_GLINTS`` of the band's detections matched (its glints fall elsewhere: the top rows of
+#: a frame while the eye looks down, a band of lid clutter): the band is not searched (a search
+#: could match it only at a rotation :data:`IMPLAUSIBLE_JUMP` rejects) and is left to the prior.
 OUT_OF_REACH = "band_out_of_reach"
 #: Prefix of the reason of a sparse band whose prior-assisted estimate failed too (e.g.
 #: "prior_ambiguous", "prior_residual_too_large"): a prior was there, it did not suffice.

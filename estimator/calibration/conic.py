@@ -23,7 +23,8 @@ from scipy.optimize import least_squares
 
 from ..cornea import conic_glints
 from ..geometry import Camera, as_points, rotation_from_vector
-from .lighting import LightingFit, _check_frames, _pose_bounds, calibrate_joint, pose_correction
+from .lighting import (LightingFit, _check_frames, _pose_bounds, _Stacked, calibrate_joint,
+                       pose_correction)
 from .lighting import CORNEA_RADIUS_BOUNDS_M, POSE_BOUND_M, POSE_BOUND_RAD
 from .orbit import ORBIT_RADIUS_BOUNDS_M, OrbitFit
 
@@ -43,7 +44,7 @@ ROBUST_LOSS, ROBUST_SCALE_PX = "soft_l1", 1.0
 _H = {"length_m": 1e-8, "angle_rad": 1e-6, "q": 1e-6}
 
 
-class _ConicJoint:
+class _ConicJoint(_Stacked):
     """Stacked conic residuals over m frames: x = [r_c, rotvec (3), translation (3), c_e (3),
     r_co, Q]."""
 
@@ -94,12 +95,6 @@ class _ConicJoint:
         J = np.where(fin[None, :, None], J, 0.0).reshape(p, -1).T
         self._cache_x, self._cache = x.copy(), (res, J)
         return res, J
-
-    def residuals(self, x):
-        return self._eval(x)[0]
-
-    def jacobian(self, x):
-        return self._eval(x)[1]
 
 
 def calibrate_joint_conic(camera: Camera, lights_world_m, glints_px, targets_m, mask=None, *,

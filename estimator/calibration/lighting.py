@@ -180,7 +180,18 @@ def _pose_derivative(lights, pivot, rotvec):
     return out
 
 
-class _Joint:
+class _Stacked:
+    """A least-squares problem whose residuals and Jacobian come from one evaluation,
+    ``_eval(x)`` -> (residuals, J), which caches the last x (scipy asks for both there)."""
+
+    def residuals(self, x):
+        return self._eval(x)[0]
+
+    def jacobian(self, x):
+        return self._eval(x)[1]
+
+
+class _Joint(_Stacked):
     """Stacked least squares over m frames: shared r_c and lighting pose, and cornea centres
     given by an eye model.
 
@@ -241,12 +252,6 @@ class _Joint:
         J = J[self.mask].reshape(res.size, x.size)
         self._cache_x, self._cache = x.copy(), (res, J)
         return res, J
-
-    def residuals(self, x):
-        return self._eval(x)[0]
-
-    def jacobian(self, x):
-        return self._eval(x)[1]
 
     def solve(self, x0, lo, hi, max_nfev):
         x0 = np.clip(x0, np.nextafter(lo, hi), np.nextafter(hi, lo))

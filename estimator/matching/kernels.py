@@ -1,7 +1,7 @@
 """The small steps of a band's identification compiled with Numba (optional): the coarse
 search's score over the grid of rotations, the gated assignment where no two detections want
 the same light, the lights' order along their arcs, the cheap path's rival check, the
-identities' confidences and a band's capacity (:meth:`estimator.matching.HypothesisSearch.band_capacity`).
+identities' confidences and a band's support (:meth:`estimator.matching.HypothesisSearch.band_support`).
 
 A band has 5-40 detections and candidates, so the numpy forms of these steps
 (:meth:`estimator.matching.HypothesisSearch._assign`, ``_enforce_order``,
@@ -266,22 +266,39 @@ def coarse_scores(pred, vis, nodes, g, lo, hi, band_margin_px, gate2, unmatched_
             score[node] = total / gate2 * unmatched_cost + missing_cost * missing
 
 
-def band_capacity(pred, vis, angles, center, reach, lo, hi):
-    """Most glints (visible, rows within [lo, hi]) of one grid node within ``reach`` (rad)
-    of ``center`` (2,): ``pred`` (N, n, 2), ``vis`` (N, n), ``angles`` (N, 2)."""
+def band_support(pred, vis, angles, center, reach, lo, hi, g, radius2):
+    """Most lights one grid node within ``reach`` (rad) of ``center`` (2,) can have matched:
+    per node, the fewer of its candidates (visible, rows within [lo, hi]) and of the
+    detections ``g`` (k, 2) within ``radius2`` (px²) of one of them. ``pred`` (N, n, 2),
+    ``vis`` (N, n), ``angles`` (N, 2)."""
     n_nodes, n_lights = vis.shape
+    k = g.shape[0]
     best = 0
     reach2 = reach * reach
+    near = np.zeros(k, dtype=np.bool_)
     for node in range(n_nodes):
         dy = angles[node, 0] - center[0]
         dp = angles[node, 1] - center[1]
         if dy * dy + dp * dp > reach2:
             continue
         count = 0
+        near[:] = False
         for light in range(n_lights):
-            if vis[node, light] and lo <= pred[node, light, 1] <= hi:
-                count += 1
-        best = max(best, count)
+            v = pred[node, light, 1]
+            if not (vis[node, light] and lo <= v <= hi):
+                continue
+            count += 1
+            u = pred[node, light, 0]
+            for d in range(k):
+                du, dv = u - g[d, 0], v - g[d, 1]
+                if du * du + dv * dv <= radius2:
+                    near[d] = True
+        if count <= best:
+            continue
+        found = 0
+        for d in range(k):
+            found += near[d]
+        best = max(best, min(count, found))
     return best
 
 
@@ -293,4 +310,4 @@ if ENABLED:
     rival_margin = _jit(rival_margin)
     confidences = _jit(confidences)
     coarse_scores = _jit(coarse_scores)
-    band_capacity = _jit(band_capacity)
+    band_support = _jit(band_support)

@@ -119,7 +119,7 @@ class GlintMatcher(HypothesisSearch):
         self._grid_shape = Y.shape
         self.grid_angles_rad = np.stack([Y.ravel(), P.ravel()], axis=-1)
         self.grid_glints_px, self.grid_visible = self.predict(self.grid_angles_rad)
-        #: The furthest a glint moves between neighbouring grid nodes (px; :meth:`band_capacity`).
+        #: The furthest a glint moves between neighbouring grid nodes (px; :meth:`band_support`).
         self.grid_drift_px = self._grid_drift()
 
     # ----------------------------------------------------------------------- prediction

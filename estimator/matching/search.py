@@ -38,27 +38,37 @@ class HypothesisSearch:
         out[np.flatnonzero(m)[same]] = moved[same]
         return out
 
-    def band_capacity(self, rows, center_rad, reach_rad: float) -> int:
-        """Most candidate glints any eye rotation within ``reach_rad`` of ``center_rad`` (Fick
-        yaw, pitch) can put on the band's ``rows`` (first, last): an upper bound of the lights
-        a search of the band can match at such a rotation.
+    def band_support(self, rows, center_rad, reach_rad: float, glints_px) -> int:
+        """Most lights a search of the band's detections ``glints_px`` (k, 2) on ``rows``
+        (first, last) can match at an eye rotation within ``reach_rad`` of ``center_rad``
+        (Fick yaw, pitch): an upper bound.
 
         The grid's nodes within the reach widened by a cell's half diagonal stand for every
-        rotation of it; each node counts its visible glints inside the rows widened by the
-        band margin and by :attr:`grid_drift_px`, the furthest a glint moves between
-        neighbouring nodes (a rotation lies within half a step in each angle of a node)."""
-        m = self.params.band_margin_px + self.grid_drift_px
+        rotation of it, and :attr:`grid_drift_px`, the furthest a glint moves between
+        neighbouring nodes, for the glints' motion from a node to a rotation within half a step
+        of it in each angle. Per node: the fewer of its candidates (visible glints on the rows
+        widened by the band margin and the drift) and of the detections within ``gate_px``
+        plus the drift of one of them (a match lies within ``gate_px`` of its light's glint);
+        the most over the nodes."""
+        drift = self.grid_drift_px
+        m = self.params.band_margin_px + drift
         lo, hi = float(rows[0]) - m, float(rows[1]) + m
         reach = float(reach_rad) + math.radians(self.params.grid_step_deg) / math.sqrt(2.0)
         center = np.asarray(center_rad, dtype=np.float64).reshape(2)
+        g = np.ascontiguousarray(glints_px, dtype=np.float64).reshape(-1, 2)
+        radius2 = (self.params.gate_px + drift) ** 2
         if kernels.ENABLED:
-            return int(kernels.band_capacity(self.grid_glints_px, self.grid_visible,
-                                             self.grid_angles_rad, center, reach, lo, hi))
+            return int(kernels.band_support(self.grid_glints_px, self.grid_visible,
+                                            self.grid_angles_rad, center, reach, lo, hi, g,
+                                            radius2))
         near = np.hypot(*(self.grid_angles_rad - center).T) <= reach
-        if not near.any():
+        if not near.any() or g.shape[0] == 0:
             return 0
-        v = self.grid_glints_px[near, :, 1]
-        return int((self.grid_visible[near] & (v >= lo) & (v <= hi)).sum(axis=1).max())
+        pred = self.grid_glints_px[near]
+        cand = self.grid_visible[near] & (pred[..., 1] >= lo) & (pred[..., 1] <= hi)
+        d2 = ((pred[:, :, None, :] - g[None, None]) ** 2).sum(-1)  # (nodes, n, k)
+        found = ((d2 <= radius2) & cand[..., None]).any(axis=1).sum(axis=1)
+        return int(np.minimum(cand.sum(axis=1), found).max())
 
     def _grid_drift(self) -> float:
         """The furthest any light's glint moves between neighbouring grid nodes (px), both

@@ -83,7 +83,7 @@ def software_versions() -> dict:
 #: Setup fields added after datasets were first written, with the value that reproduces the
 #: older setups: a field at that value is left out of the fingerprint, so that datasets
 #: rendered before it existed (byte-identical frames) still resume and compare equal.
-_LATER_FIELDS = {("Eye", "cornea_asphericity"): 0.0}
+_LATER_FIELDS = {("Eye", "cornea_asphericity"): 0.0, ("Setup", "eyelids"): None}
 
 
 def _at_older_value(obj, name: str) -> bool:

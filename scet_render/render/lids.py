@@ -28,7 +28,7 @@ from estimator.eyelids import Eyelids
 from estimator.setup import Setup
 
 from .layout import SCENE_UNITS_PER_M, EyeLayout
-from .meshes import _affine, _to_scene_units, _trimesh
+from .meshes import _affine, _grid_faces, _to_scene_units, _trimesh
 
 #: Gap between the lower lid's shell and the upper lid's (m): below the 0.4 mm between the
 #: lids and the skin, above float32 rounding at 1 cm scene units (~1e-9 m).
@@ -61,13 +61,8 @@ def _pencil_grid(center, radius, side, theta):
     rotation angle, so the shut upper lid meets the lower one along the whole margin."""
     S, T = np.meshgrid(side, theta, indexing="ij")
     n = np.stack([np.sin(S), np.cos(S) * np.sin(T), -np.cos(S) * np.cos(T)], axis=-1)
-    nu, nv = S.shape
-    idx = np.arange(nu * nv).reshape(nu, nv)
-    a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
-    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
-                            np.stack([a, c, d], -1).reshape(-1, 3)])
     n = n.reshape(-1, 3)
-    return center + radius * n, n, faces
+    return center + radius * n, n, _grid_faces(*S.shape)
 
 
 def lid_radii_m(layout: EyeLayout) -> tuple[float, float]:

@@ -88,13 +88,16 @@ def _shell_grid(center, radius, az, el):
     """Vertices/normals/faces of a shell patch over an (az, el) grid, az about -z, el up."""
     A, E = np.meshgrid(az, el, indexing="ij")
     n = np.stack([np.cos(E) * np.sin(A), np.sin(E), -np.cos(E) * np.cos(A)], axis=-1)
-    nu, nv = A.shape
+    n = n.reshape(-1, 3)
+    return center + radius * n, n, _grid_faces(*A.shape)
+
+
+def _grid_faces(nu: int, nv: int) -> np.ndarray:
+    """Triangles (2 (nu-1)(nv-1), 3) of a (nu, nv) grid of vertices numbered row-major."""
     idx = np.arange(nu * nv).reshape(nu, nv)
     a, b, c, d = idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:], idx[:-1, 1:]
-    faces = np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
-                            np.stack([a, c, d], -1).reshape(-1, 3)])
-    n = n.reshape(-1, 3)
-    return center + radius * n, n, faces
+    return np.concatenate([np.stack([a, b, c], -1).reshape(-1, 3),
+                           np.stack([a, c, d], -1).reshape(-1, 3)])
 
 
 def eyelid_meshes(setup: Setup, layout: EyeLayout, n_az: int = 13, n_el: int = 5):

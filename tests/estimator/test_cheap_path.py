@@ -197,35 +197,48 @@ def test_the_small_fit_refuses_a_half_given_prior(setup, calibration):  # noqa: 
                   model="orbit", prior_mean=np.zeros(2))
 
 
-def test_band_capacity_bounds_every_reachable_rotation(setup, calibration):  # noqa: F811
-    """No rotation within the reach puts more candidates on a band's rows than its capacity
-    (500 random off-grid rotations per case), and a band the eye's glints cannot reach has a
-    capacity under the tracker's 5 glints while the band holding them has at least theirs."""
+def test_band_support_bounds_every_reachable_rotation(setup, calibration):  # noqa: F811
+    """No rotation within the reach has more detections within the gate of its candidate
+    glints on a band's rows than the band's support (300 random off-grid rotations per case,
+    detections: one reachable rotation's glints jittered inside the gate, and clutter); a
+    band's own glints at a reachable rotation are supported, clutter on the same rows where
+    no reachable glint falls (lid, skin) is not, and rows the eye's glints cannot reach support nothing."""
     problems = calibrated_problems(setup, calibration)
     m = GlintMatcher(setup, calibration=calibration, problem=problems.orbit)
     rng = np.random.default_rng(5)
-    b = m.params.band_margin_px
-    H = setup.camera.height_px
+    b, gate = m.params.band_margin_px, m.params.gate_px
+    H, W = setup.camera.height_px, setup.camera.width_px
+
+    def within(center, reach, n):
+        r = reach * np.sqrt(rng.random(n))
+        phi = rng.uniform(0, 2 * np.pi, n)
+        return center + np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
+
     for center_deg, reach_deg in (((0.0, -15.0), 4.0), ((5.0, 5.0), 12.0), ((-10.0, 0.0), 2.0)):
         center, reach = np.radians(center_deg), np.radians(reach_deg)
-        r = reach * np.sqrt(rng.random(500))
-        phi = rng.uniform(0, 2 * np.pi, 500)
-        angles = center + np.stack([r * np.cos(phi), r * np.sin(phi)], axis=1)
-        g, vis = m.predict(angles)
+        g_true, v_true = m.predict(within(center, reach, 1)[0])
+        det = np.concatenate([g_true[v_true] + rng.uniform(-0.6, 0.6, (v_true.sum(), 2)) * gate,
+                              rng.uniform([0, 0], [W, H], (30, 2))])
+        g, vis = m.predict(within(center, reach, 300))
         for lo in range(0, H, H // 12):
             rows = (lo, lo + H // 12)
-            cap = m.band_capacity(rows, center, reach)
-            v = g[..., 1]
-            count = (vis & (v >= rows[0] - b) & (v <= rows[1] + b)).sum(axis=1)
-            assert count.max() <= cap, (center_deg, reach_deg, rows)
+            support = m.band_support(rows, center, reach, det)
+            cand = vis & (g[..., 1] >= rows[0] - b) & (g[..., 1] <= rows[1] + b)  # (300, n)
+            d = np.linalg.norm(g[:, :, None] - det[None, None], axis=-1)  # (300, n, k)
+            near = ((d <= gate) & cand[..., None]).any(axis=1).sum(axis=1)
+            assert np.minimum(near, cand.sum(axis=1)).max() <= support, (center_deg, rows)
     # Looking 15 deg down, 4 deg of reach: the glints sit low in the frame.
     center, reach = np.radians([0.0, -15.0]), np.radians(4.0)
     g, vis = m.predict(center)
-    top = (0, g[vis, 1].min() - 10 * b - m.grid_drift_px)
-    assert m.band_capacity(top, center, reach) < 5
     holding = (g[vis, 1].min(), g[vis, 1].min() + 40)
-    inside = (vis & (g[:, 1] >= holding[0]) & (g[:, 1] <= holding[1])).sum()
-    assert m.band_capacity(holding, center, reach) >= inside >= 5
+    inside = vis & (g[:, 1] >= holding[0]) & (g[:, 1] <= holding[1])
+    assert m.band_support(holding, center, reach, g[inside]) >= inside.sum() >= 5
+    # Clutter on the same rows at the frame's left edge, where no reachable glint falls.
+    assert g[vis, 0].min() > 60  # and a 4-deg turn moves a glint < 20 px
+    clutter = np.stack([rng.uniform(0, 30, 12), rng.uniform(*holding, 12)], axis=1)
+    assert m.band_support(holding, center, reach, clutter) < 5
+    top = (0, g[vis, 1].min() - 10 * b - m.grid_drift_px)
+    assert m.band_support(top, center, reach, rng.uniform([0, 0], [W, top[1]], (12, 2))) < 5
 
 
 def test_a_band_out_of_reach_is_left_to_the_prior(setup, calibration):  # noqa: F811

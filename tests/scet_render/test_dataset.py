@@ -180,6 +180,13 @@ def test_bad_arguments_are_refused(tmp_path, paper, kwargs, match):
     assert not (tmp_path / "d").exists()
 
 
+def test_setup_fingerprint_of_datasets_rendered_before_later_fields(paper):
+    """paper_sim's fingerprint as written by the code before the conic cornea and the moving
+    lids existed (commit f24169d): datasets rendered then still resume and compare equal."""
+    assert setup_fingerprint(paper) == \
+        "3098afe1dda6ce85dc3f7e3174bc17bc84ec658f472633092cfcae423793c661"
+
+
 def test_setup_fingerprint_sees_changes_made_in_code(paper, small):
     assert setup_fingerprint(paper) == setup_fingerprint(load_scene("paper_sim"))
     assert setup_fingerprint(paper) != setup_fingerprint(small)
