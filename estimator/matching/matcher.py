@@ -371,6 +371,8 @@ class GlintMatcher(HypothesisSearch):
         if prior is not None:
             pred, cand, _ = self._candidates(X[:1], lo, hi)
             base, _ = self._assign(g, pred[0], cand[0], first_gate)
+            if len(starts) == 1 and not (base >= 0).any():
+                return None  # what the refinement of this one start would find: nothing
             shifted = [a for a in (self._shift(base, s) for s in steps) if (a >= 0).any()]
             first = [None] * len(starts) + shifted
             X = np.concatenate([X, np.repeat(X[:1], len(shifted), axis=0)])
