@@ -343,7 +343,8 @@ cornea a sphere), the ground truth of the labels, and the feature-level simulati
 poses, lights and calibration ({SIM_REPEATS} noise realisations at the e_f of the rendered
 detections; its glints are the exact conic reflections). Lids: the renderer's static eyelids at
 their default openness (1.0: they clear the cornea for every gaze at the screen) and none.
-**Lashes and moving lids are not modelled yet**: "lids on" is the static lid only. Band
+**The study does not run the moving lids, lashes and blinks yet** (the renderer has them:
+the scene's `[eyelids]` table): "lids on" is the static lid only. Band
 position: the third of the visible rows holding the band's centre.
 
 ## What the numbers mean
@@ -374,8 +375,8 @@ stay small because the large ones are refused. (4) Polynomial gaze maps the fitt
 centre through the calibrated Eq. (1) polynomial, which amplifies a band fit's biased centre
 (the tens of degrees of its p95 at large |Q|, against a few degrees from every glint). (5) The
 static lids at openness 1.0 clear the cornea for every gaze at the screen, so lids on and off
-differ little; lids that cover the cornea, lashes and blinks are the
-missing part of "lids and lashes" (not modelled yet).
+differ little; lids that cover the cornea, lashes and blinks (`[eyelids]`) are the
+missing part of "lids and lashes" in this study.
 
 ## Calibration and glint fits per condition
 

@@ -103,7 +103,7 @@ def test_tiny_rendered_study(tmp_path):
         config=cfg, lids=(1.0,), cornea_models=("sphere", "conic"))
     assert path.is_file() and (tmp_path / "r" / "figures" / "aspheric_errors.png").is_file()
     text = path.read_text()
-    assert "Lashes and moving lids are not modelled yet" in text
+    assert "does not run the moving lids, lashes and blinks yet" in text
     manifest = json.loads((tmp_path / "w" / "q-0.250_lids" / "test_p16" / "manifest.json")
                           .read_text())
     assert "cornea_asphericity = -0.25" in manifest["scene"]["toml"]
