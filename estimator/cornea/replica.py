@@ -37,7 +37,7 @@ import estimator.cornea.solve as solve
 
 from ..geometry import compiled
 from .problem import FitProblem
-from .small import _residuals_rows
+from .small import _normal_sums, _residuals_rows
 
 __all__ = ["ENABLED", "fit_replica"]
 
@@ -48,18 +48,8 @@ ENABLED = compiled.ENABLED
 
 def _normal(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res, jac, J, JtJ, Jtr):
     """Cost Σ r² at x, and JᵀJ, Jᵀr (written out) with J in closed form."""
-    k, p = glints.shape[0], x.shape[0]
     cost = _residuals_rows(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res, jac, J)
-    for a in range(p):
-        s = 0.0
-        for i in range(2 * k):
-            s += J[i, a] * res[i]
-        Jtr[a] = s
-        for b in range(p):
-            s = 0.0
-            for i in range(2 * k):
-                s += J[i, a] * J[i, b]
-            JtJ[a, b] = s
+    _normal_sums(J, res, JtJ, Jtr)
     return cost
 
 

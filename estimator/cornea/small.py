@@ -95,6 +95,21 @@ def _residuals_rows(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, r
     return cost
 
 
+def _normal_sums(J, res, JtJ, Jtr):
+    """JᵀJ (p, p) and Jᵀr (p,) of J (2k, p) and r (2k,), written out."""
+    n, p = J.shape
+    for a in range(p):
+        s = 0.0
+        for i in range(n):
+            s += J[i, a] * res[i]
+        Jtr[a] = s
+        for b in range(p):
+            s = 0.0
+            for i in range(n):
+                s += J[i, a] * J[i, b]
+            JtJ[a, b] = s
+
+
 def _solve(A, b, out):
     """out = A⁻¹ b by Gaussian elimination with partial pivoting (p <= 3); False if singular."""
     p = b.shape[0]
@@ -162,18 +177,10 @@ def _lm(R, O, intr, size, model, x0, ce, rco, radius, lights, glints, max_iter, 
         if not math.isfinite(cost):
             break
         _residuals_rows(cam, model, x, ce, rco, radius, lights, glints, g, vis, c, res, jac, J)
+        _normal_sums(J, res, JtJ, Jtr)
         for a in range(p):
-            s = 0.0
-            for i in range(2 * k):
-                s += J[i, a] * res[i]
             for b in range(p):
-                s += P[a, b] * (x[b] - pm[b])
-            Jtr[a] = s
-            for b in range(p):
-                s = 0.0
-                for i in range(2 * k):
-                    s += J[i, a] * J[i, b]
-                JtJ[a, b] = s
+                Jtr[a] += P[a, b] * (x[b] - pm[b])
         iters += 1
         accepted = False
         while lam <= 1e12:
@@ -212,6 +219,7 @@ if compiled.ENABLED:
     _centre = _jit(_centre)
     _residuals = _jit(_residuals)
     _residuals_rows = _jit(_residuals_rows)
+    _normal_sums = _jit(_normal_sums)
     _solve = _jit(_solve)
     _prior_cost = _jit(_prior_cost)
     _lm = _jit(_lm)
