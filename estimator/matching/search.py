@@ -76,7 +76,8 @@ class HypothesisSearch:
         G = self.grid_glints_px.reshape(self._grid_shape + self.grid_glints_px.shape[1:])
         V = self.grid_visible.reshape(self._grid_shape + self.grid_visible.shape[1:])
         drift = 0.0
-        for a, b, both in ((G[1:], G[:-1], V[1:] & V[:-1]), (G[:, 1:], G[:, :-1], V[:, 1:] & V[:, :-1])):
+        for a, b, both in ((G[1:], G[:-1], V[1:] & V[:-1]),
+                           (G[:, 1:], G[:, :-1], V[:, 1:] & V[:, :-1])):
             d = np.linalg.norm(a - b, axis=-1)[both]
             drift = max(drift, float(d.max()) if d.size else 0.0)
         return drift

@@ -10,6 +10,7 @@ from estimator.cornea import fit_cornea, fit_small
 from estimator.gaze import calibrated_problems
 from estimator.geometry import (camera_arrays, glint_jacobians, glints_and_rows_one_pose,
                                 glints_one_pose, project_glints)
+import estimator.matching.kernels as kernels
 from estimator.matching import BandFollower, GlintMatcher
 from estimator.tracker import Tracker
 from tests.estimator.test_tracker import calibration, draw_frame, setup  # noqa: F401 fixtures
@@ -223,6 +224,12 @@ def test_band_support_bounds_every_reachable_rotation(setup, calibration):  # no
         for lo in range(0, H, H // 12):
             rows = (lo, lo + H // 12)
             support = m.band_support(rows, center, reach, det)
+            if kernels.ENABLED:  # the numpy form (no Numba) bounds the same way, equally
+                kernels.ENABLED = False
+                try:
+                    assert m.band_support(rows, center, reach, det) == support
+                finally:
+                    kernels.ENABLED = True
             cand = vis & (g[..., 1] >= rows[0] - b) & (g[..., 1] <= rows[1] + b)  # (300, n)
             d = np.linalg.norm(g[:, :, None] - det[None, None], axis=-1)  # (300, n, k)
             near = ((d <= gate) & cand[..., None]).any(axis=1).sum(axis=1)
