@@ -206,7 +206,7 @@ def add_parsers(sub) -> None:
     e.add_argument("--report-dir", type=Path, default=Path("reports"))
     e.set_defaults(func=cmd_study_events)
     a = studies.add_parser("aspheric", help="the spherical tracker on conic corneas (Q), rendered "
-                                            "and simulated, lids on and off: reports/aspheric.md")
+                                            "and simulated, lids static, off and moving: reports/aspheric.md")
     a.add_argument("scene", nargs="?", help=scene_help)
     a.add_argument("--q", default="0,-0.1,-0.25,-0.45",
                    help="conic constants, comma separated, -1 < Q <= 1 (default 0,-0.1,-0.25,-0.45; "

@@ -8,8 +8,9 @@ manifests record) and runs on it exactly what ``scet validate`` runs
 (:func:`scet_render.validate.validate_setup`: single-pulse calibration frames and a banded
 fixation sequence rendered with Mitsuba, the conic cornea drawn exactly; calibration; both
 gaze methods; the feature-level simulation of the same poses, lights and calibration, whose
-glints are the exact conic reflections), once with the renderer's static eyelids at their
-default openness and once without lids. The samples are scored per band position
+glints are the exact conic reflections), once per lid condition (:data:`LID_CONDITIONS`:
+the renderer's static eyelids at their default openness, no lids, and the scene's moving lids
+with lashes and blinks, :data:`MOVING_LIDS`). The samples are scored per band position
 (:func:`scet_render.validate.band_position`). Beside it, :func:`feature_level_model_error`
 runs the simulator alone at full size, calibration included, noise-free: the model error with
 nothing else in it.
@@ -41,9 +42,17 @@ from ..validate import POSITIONS, SIM_REPEATS, ValidationConfig, band_position, 
 #: The issue's conic constants: the sphere, and flattening up to about the population's
 #: extreme (Q ~ -0.25 on average, SD ~0.1-0.2 in keratometry studies).
 DEFAULT_ASPHERICITIES = (0.0, -0.1, -0.25, -0.45)
-#: Eyelid openness of the two lid conditions: the renderer's default (lids clear the cornea
-#: for every gaze at the screen; 1.0) and no lids at all (None).
-LID_CONDITIONS = (1.0, None)
+#: The lid conditions: ``"on"``, the renderer's static eyelids at their default openness (1.0:
+#: they clear the cornea for every gaze at the screen); ``"off"``, no lids; ``"moving"``, the
+#: scene's ``[eyelids]`` table (:data:`MOVING_LIDS`): lids that follow the eye's pitch, lashes
+#: and blinks.
+LID_CONDITIONS = ("on", "off", "moving")
+#: The ``[eyelids]`` table of the moving-lid condition: the default gains and margins (clear
+#: of the cornea by 5 deg at every gaze at the screen), 40 lashes, 15 blinks a minute
+#: (a typical spontaneous rate, 4-50/min: Bentivoglio et al. 1997, as the README cites).
+MOVING_LIDS = "[eyelids]\nlash_count = 40\nblink_rate_per_min = 15\n"
+_LID_OPENNESS = {"on": 1.0, "off": None, "moving": 1.0}
+_LID_FOLDERS = {"on": "lids", "off": "nolids", "moving": "movinglids"}
 
 #: Quick: ``scet validate --quick``'s render settings, at the scene's own 16 pulses per frame
 #: only, and 60 frames: 1 s of fixations at 0.25 s each, four grid cells (30 frames held two
@@ -128,6 +137,26 @@ def aspheric_scene(setup: Setup, q: float, scene_text: str | None = None) -> tup
     return derived, out
 
 
+def moving_lid_scene(setup: Setup, scene_text: str) -> tuple[Setup, str]:
+    """The setup and scene text of :func:`aspheric_scene` with :data:`MOVING_LIDS` appended:
+    the setup's ``eyelids`` from the text (its ``source_sha256`` that of the new text),
+    checked to load to the same setup. ValueError where the scene has an ``[eyelids]`` table
+    already."""
+    from ..dataset.manifest import setup_fingerprint
+
+    if setup.eyelids is not None or re.search(r"(?m)^\s*\[eyelids\]", scene_text):
+        raise ValueError(f"{setup.source or setup.name}: the scene has its own [eyelids] table; "
+                         "the moving-lid condition adds one")
+    out = scene_text + ("" if scene_text.endswith("\n") else "\n") + "\n" + MOVING_LIDS
+    loaded = parse_scene(out, f"{setup.source or setup.name} with moving lids")
+    derived = replace(setup, eyelids=loaded.eyelids,
+                      source_sha256=hashlib.sha256(out.encode("utf-8")).hexdigest())
+    if setup_fingerprint(loaded) != setup_fingerprint(derived):
+        raise ValueError(f"{setup.source or setup.name}: the moving-lid scene text does not load "
+                         "to the derived setup")
+    return derived, out
+
+
 # --------------------------------------------------------------------------- feature level only
 
 
@@ -186,8 +215,8 @@ class AsphericCondition:
     Attributes
     ----------
     q : float
-    lids : bool
-        Static eyelids at :data:`LID_CONDITIONS` [0] (True) or none (False).
+    lids : str
+        The lid condition, one of :data:`LID_CONDITIONS`.
     stats : dict
         (source, method, position) -> :func:`scet_render.validate.error_statistics` tuple
         (position ``"all"`` or one of :data:`~scet_render.validate.POSITIONS`).
@@ -219,7 +248,7 @@ class AsphericCondition:
     """
 
     q: float
-    lids: bool
+    lids: str
     stats: dict
     errors: dict
     cornea_radius_m: float
@@ -237,7 +266,7 @@ class AsphericCondition:
     cornea_asphericity: float = 0.0
 
 
-def condition_from_run(run, q: float, lids: bool, cornea_model: str = "sphere") -> AsphericCondition:
+def condition_from_run(run, q: float, lids: str, cornea_model: str = "sphere") -> AsphericCondition:
     """Per band position scores and fit residuals of a :class:`ValidationRun` (one strobe
     setting)."""
     from estimator.gaze import calibrated_problems, geometric_gaze, polynomial_gaze
@@ -288,7 +317,7 @@ def condition_from_run(run, q: float, lids: bool, cornea_model: str = "sphere") 
         every[method] = angular_error_deg(est.point_m, grid, sset.eye.rotation_center_m)
     cal = run.calibration
     return AsphericCondition(
-        float(q), bool(lids), stats, errors, cal.cornea_radius_m, float(cal.quality["rms_px"]),
+        float(q), str(lids), stats, errors, cal.cornea_radius_m, float(cal.quality["rms_px"]),
         float(np.linalg.norm(cal.eye_center_m - sset.eye.rotation_center_m)),
         run.noise_by_ppf[ppf], fit, model, rejected, reasons, dict(run.timings), every,
         len({tuple(np.round(lb.target_m, 6)) for lb in by_key.values()}), cornea_model,
@@ -318,8 +347,8 @@ def run_aspheric_study(scene=None, *, quick: bool, out_dir, report_dir,
         ``progress(stage, done, total)``.
     config : ValidationConfig, optional
         Overrides the mode's (one strobe setting).
-    lids : sequence
-        Eyelid openness per lid condition (None: no lids).
+    lids : sequence of str
+        Lid conditions, of :data:`LID_CONDITIONS`.
     cornea_models : sequence of str
         The trackers run on the same renders: ``"sphere"`` first, then optionally ``"conic"``
         (:func:`scet_render.validate.validate_setup`'s ``cornea_model``).
@@ -340,6 +369,9 @@ def run_aspheric_study(scene=None, *, quick: bool, out_dir, report_dir,
     if not models or models[0] != "sphere" or len(set(models)) != len(models) or \
             not set(models) <= {"sphere", "conic"}:
         raise ValueError(f"cornea_models must be ('sphere',) or ('sphere', 'conic'), got {models}")
+    lids = tuple(lids)
+    if not lids or not set(lids) <= set(LID_CONDITIONS) or len(set(lids)) != len(lids):
+        raise ValueError(f"lids must be distinct conditions of {LID_CONDITIONS}, got {lids}")
     qs = tuple(float(q) for q in asphericities)
     if not qs:
         raise ValueError("asphericities: at least one conic constant is needed")
@@ -355,15 +387,18 @@ def run_aspheric_study(scene=None, *, quick: bool, out_dir, report_dir,
         if progress is not None:
             progress(f"Q={q:g} feature level", 1, 1)
         sim_s = time.perf_counter() - t
-        for openness in lids:
-            name = f"q{q:+.3f}_" + ("lids" if openness is not None else "nolids")
+        for lid in lids:
+            name = f"q{q:+.3f}_" + _LID_FOLDERS[lid]
             stage = ((lambda tag: (lambda s, d, n: progress(f"{tag} {s}", d, n)))(name)
                      if progress is not None else None)
+            setup_l, text_l = derived, text
+            if lid == "moving":
+                setup_l, text_l = moving_lid_scene(derived, text)
             for model in models:
-                run = validate_setup(scaled_setup(derived, cfg.scale), cfg, Path(out_dir) / name,
-                                     seed=seed, progress=stage, eyelid_openness=openness,
-                                     scene_text=text, cornea_model=model)
-                c = condition_from_run(run, q, openness is not None, model)
+                run = validate_setup(scaled_setup(setup_l, cfg.scale), cfg, Path(out_dir) / name,
+                                     seed=seed, progress=stage, eyelid_openness=_LID_OPENNESS[lid],
+                                     scene_text=text_l, cornea_model=model)
+                c = condition_from_run(run, q, lid, model)
                 c.timings_s["feature_level"] = sim_s
                 conditions.append(c)
     wall_s = time.perf_counter() - t0

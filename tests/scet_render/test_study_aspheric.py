@@ -100,15 +100,17 @@ def test_tiny_rendered_study(tmp_path):
                            pulses_per_frame=(16,))
     conditions, features, path = run_aspheric_study(
         quick=True, out_dir=tmp_path / "w", report_dir=tmp_path / "r", asphericities=(0.0, -0.25),
-        config=cfg, lids=(1.0,), cornea_models=("sphere", "conic"))
+        config=cfg, lids=("on",), cornea_models=("sphere", "conic"))
     assert path.is_file() and (tmp_path / "r" / "figures" / "aspheric_errors.png").is_file()
     text = path.read_text()
-    assert "does not run the moving lids, lashes and blinks yet" in text
+    assert "40 lashes on the upper lid and 15 blinks a minute" in text
     manifest = json.loads((tmp_path / "w" / "q-0.250_lids" / "test_p16" / "manifest.json")
                           .read_text())
     assert "cornea_asphericity = -0.25" in manifest["scene"]["toml"]
     assert manifest["render"]["renderer"]["scene_options"]["eyelid_openness"] == 1.0
     assert "## The conic-aware tracker" in text
+    assert "- geometric, rendered, lids on, Q = -0.25 (calibrated" in text  # the findings
+    assert "- Q = -0.25, geometric: band samples" in text
     conic = [c for c in conditions if c.cornea_model == "conic"]
     assert len(conic) == 2 and all(np.isfinite(c.cornea_asphericity) for c in conic)
     by_q = {c.q: c for c in conditions if c.cornea_model == "sphere"}
@@ -121,3 +123,42 @@ def test_tiny_rendered_study(tmp_path):
     fit = {q: np.median(c.fit_rms_px["geometric"]) for q, c in by_q.items()}
     assert fit[-0.25] > fit[0.0]
     assert set(features) == {0.0, -0.25, (0.0, "conic"), (-0.25, "conic")}
+
+
+def test_moving_lid_condition_derives_its_scene_and_refuses_bad_lids(tmp_path):
+    """The moving-lid condition appends MOVING_LIDS to the scene text: the setup's lids are the
+    text's (40 lashes, 15 blinks/min), it loads to the same setup; a scene with its own
+    [eyelids] table and an unknown lid condition are refused."""
+    import pytest
+
+    from estimator.scene import load_scene, parse_scene
+    from scet_render.study.aspheric import aspheric_scene, moving_lid_scene, run_aspheric_study
+
+    base = load_scene("paper_sim")
+    derived, text = aspheric_scene(base, -0.25)
+    moving, text2 = moving_lid_scene(derived, text)
+    assert moving.eyelids.lash_count == 40 and moving.eyelids.blink_rate_per_min == 15
+    assert setup_fingerprint(parse_scene(text2)) == setup_fingerprint(moving)
+    with pytest.raises(ValueError, match="own \\[eyelids\\] table"):
+        moving_lid_scene(moving, text2)
+    with pytest.raises(ValueError, match="lids must be distinct conditions"):
+        run_aspheric_study(quick=True, out_dir=tmp_path, report_dir=tmp_path, lids=(1.0,))
+
+
+def test_tiny_rendered_study_with_moving_lids(tmp_path):
+    """The moving-lid condition renders the scene with its [eyelids] table (recorded in the
+    manifest) and is scored like the others (one condition per Q and tracker)."""
+    pytest.importorskip("mitsuba")
+    from scet_render.study.aspheric import run_aspheric_study
+    from scet_render.validate import ValidationConfig
+
+    cfg = ValidationConfig(scale=2, spp=2, cornea="conductor", frames=3, calib_grid=(3, 3),
+                           pulses_per_frame=(16,))
+    conditions, _, path = run_aspheric_study(
+        quick=True, out_dir=tmp_path / "w", report_dir=tmp_path / "r", asphericities=(0.0,),
+        config=cfg, lids=("moving",))
+    assert [(c.q, c.lids, c.cornea_model) for c in conditions] == [(0.0, "moving", "sphere")]
+    toml = json.loads((tmp_path / "w" / "q+0.000_movinglids" / "test_p16" / "manifest.json")
+                      .read_text())["scene"]["toml"]
+    assert "[eyelids]" in toml and "lash_count = 40" in toml
+    assert "| 0 | moving |" in path.read_text()
