@@ -186,9 +186,8 @@ class GlintMatcher(HypothesisSearch):
         """:meth:`_predict_one` and d glint / d (yaw, pitch) (n, 2, 2) (px per rad) in closed
         form (:func:`estimator.geometry.glints_and_rows_one_pose` through the orbit)."""
         eye = self.eye
+        center, axis = self._orbit_pose(yaw, pitch)
         cp, sp, cy, sy = math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
-        axis = np.array([cp * sy, sp, -cp * cy])
-        center = eye.rotation_center_m + eye.cornea_offset_m * axis
         g, vis, d_center = glints_and_rows_one_pose(
             self.setup.camera, center, eye.cornea_radius_m, self.lights_world_m,
             cornea_axis=axis, cap_cos_min=eye.cap_cos_min, arrays=self.arrays)
