@@ -68,7 +68,10 @@ PI_FACTOR, PI_RANGE = 15.0, (10.0, 30.0)
 PI_SOURCE = "shared/HARDWARE.md Sec. 12 (planning rule: x86 single-thread time x 15, 10-30)"
 #: Whether the matcher's compiled steps run (Numba installed, JIT on).
 KERNELS = match_kernels.ENABLED
-STAGES = ("detect", "group", "predict", "assign", "fit", "map", "search", "prior", "other")
+#: follow: the cheap path's prediction, assignment, fit and checks as one compiled call
+#: (estimator.matching.follow_kernel); with the Python form they count as predict, assign, fit.
+STAGES = ("detect", "group", "follow", "predict", "assign", "fit", "map", "search", "prior",
+          "other")
 
 
 def synthetic_frames(setup, n: int, rng):
@@ -117,18 +120,25 @@ class _Timed:
             self.totals[self.stage] += time.perf_counter() - t
             self.totals["_searching"] = False
 
+    def __getattr__(self, name):  # the wrapped object's other methods (a detector's reset)
+        return getattr(self.fn, name)
+
 
 class _TimedMapping:
     def __init__(self, mapping, totals):
         self.mapping, self.n_features = mapping, mapping.n_features
         self.predict = _Timed(mapping.predict, totals, "map")
+        self.predict_one = _Timed(mapping.predict_one, totals, "map")
 
 
-def breakdown(setup, cal, method, frames) -> dict:
+def breakdown(setup, cal, method, frames, compiled=True) -> dict:
     """Seconds per stage of one cheap-path pass (the stages wrapped where they are called;
-    nested stages are subtracted from their callers)."""
+    nested stages are subtracted from their callers); ``compiled`` False runs the Python
+    form of the cheap path's follow, whose predict, assign and fit are timed apart."""
     totals = defaultdict(float)
     tr = Tracker(setup, cal, method)
+    tr.follower.compiled = compiled and tr.follower.compiled
+    tr.follower._follow_compiled = _Timed(tr.follower._follow_compiled, totals, "follow")
     tr._detector = _Timed(tr._detector, totals, "detect")
     tr.follower.predict = _Timed(tr.follower.predict, totals, "predict")
     m = tr.matcher
@@ -286,10 +296,11 @@ def main(argv=None):
               f"{ratio_numpy.min():.2f}-{ratio_numpy.max():.2f}); same samples: "
               f"{'yes' if agree_numpy else 'NO'}"
               + ("" if KERNELS else " (Numba is not installed: both run numpy)"))
-        b = breakdown(setup, cal, method, frames)
-        per = {s: 1e6 * b[s] / b["samples"] for s in STAGES}
-        print("  us per band (cheap path): " + ", ".join(f"{s} {per[s]:.0f}" for s in STAGES)
-              + f"; total {1e6 * b['wall'] / b['samples']:.0f}")
+        for compiled, name in ((True, "cheap path"), (False, "cheap path, Python follow")):
+            b = breakdown(setup, cal, method, frames, compiled)
+            per = {s: 1e6 * b[s] / b["samples"] for s in STAGES}
+            print(f"  us per band ({name}): " + ", ".join(f"{s} {per[s]:.0f}" for s in STAGES)
+                  + f"; total {1e6 * b['wall'] / b['samples']:.0f}")
         best = np.median(rates[True])
         print(f"  Raspberry Pi 3B+ estimate: {best / PI_FACTOR:.0f} samples/s per core "
               f"({best / PI_RANGE[1]:.0f}-{best / PI_RANGE[0]:.0f}; factor {PI_FACTOR:g}, "

@@ -444,7 +444,7 @@ class Tracker:
         (polynomial), or where its optical axis from the calibrated eye centre meets the
         screen (geometric; NaN where it does not)."""
         if self.method == "polynomial":
-            return np.asarray(self._map.predict(center_m[None])[0], dtype=np.float64)
+            return np.array(self._map.predict_one(center_m))
         point, hits = screen_intersection(self.calibration.eye_center_m,
                                           gaze_direction(angles_rad[0], angles_rad[1])[None],
                                           self.setup.screen.z_m)
@@ -476,8 +476,8 @@ class Tracker:
         """Whether the eye rotation ``angles_rad`` is further from the previous sample's than
         the eye turns in the time between them (see :data:`JUMP_AGE_S`)."""
         recent = self._recent(time_s)
-        return recent is not None and bool(
-            np.hypot(*(np.asarray(angles_rad) - recent[0])) > recent[3])
+        return recent is not None and math.hypot(float(angles_rad[0] - recent[0][0]),
+                                                 float(angles_rad[1] - recent[0][1])) > recent[3]
 
     def _unfillable(self, time_s: float, rows, g) -> bool:
         """Whether no eye rotation :meth:`_implausible` accepts can have :data:`MIN_GLINTS` of

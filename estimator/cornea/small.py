@@ -224,6 +224,12 @@ if compiled.ENABLED:
     _prior_cost = _jit(_prior_cost)
     _lm = _jit(_lm)
 
+#: The compiled Levenberg-Marquardt of :func:`fit_small` itself (``_lm``'s arguments), for
+#: kernels that run a whole band in one compiled call (:mod:`estimator.matching.follow_kernel`).
+lm_kernel = _lm
+#: The step below which :func:`fit_small` stops (m; divided by r_co for the orbit's angles).
+XTOL_M = _XTOL_M
+
 
 def fit_small(problem: FitProblem, glints_px, lights_world_m, x0, *, model: str,
               max_iter: int = 50, arrays=None, prior_mean=None,

@@ -39,12 +39,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+import estimator.matching.follow_kernel as follow_kernel
 import estimator.matching.kernels as kernels
 
 from ..cornea import SmallFit, fit_small
+from ..cornea.small import XTOL_M
 from .matcher import GlintMatcher
 from .model import _Hypothesis
-from .params import GlintMatch
+from .params import OK, GlintMatch
 
 #: Most assign-fit rounds before the path gives up (the assignment settles after 1-2).
 MAX_ROUNDS = 3
@@ -92,7 +94,25 @@ class BandFollower:
         self.arrays = matcher.arrays
         # Each light's neighbour -2, -1, +1, +2 places along its own arc (-1 off the arc).
         every = np.arange(matcher.lights_world_m.shape[0])
-        self._shifted = np.stack([matcher._shift(every, s) for s in (-2, -1, 1, 2)], axis=1)
+        self._shifted = np.ascontiguousarray(
+            np.stack([matcher._shift(every, s) for s in (-2, -1, 1, 2)], axis=1), dtype=np.int64)
+        #: Whether follow runs as one compiled call (:mod:`estimator.matching.follow_kernel`;
+        #: not while the matching kernels are switched off, :data:`kernels.ENABLED`).
+        self.compiled = follow_kernel.ENABLED
+        eye, problem, p = matcher.eye, matcher.problem, matcher.params
+        rco = float(problem.orbit_radius_m)
+        self._fixed = (
+            *self.arrays, np.asarray(eye.rotation_center_m, dtype=np.float64),
+            float(eye.cornea_offset_m), float(eye.cornea_radius_m),
+            np.ascontiguousarray(matcher.lights_world_m, dtype=np.float64),
+            float(eye.cap_cos_min), np.asarray(problem.eye_center_m, dtype=np.float64), rco,
+            float(problem.cornea_radius_m), XTOL_M / rco,
+            np.ascontiguousarray(matcher.group, dtype=np.int64), self._shifted,
+            float(p.prior_gate_px), float(p.gate_px), float(p.band_margin_px),
+            float(p.noise_px), float(p.unmatched_cost), float(p.missing_cost),
+            math.radians(p.prior_sigma_deg), int(params.min_matches),
+            math.radians(params.max_shift_deg), float(params.rival_margin),
+            int(p.min_matches), float(p.min_margin), MAX_ROUNDS)
 
     def predict(self, angles_rad):
         """Glints (n, 2) and visibility (n,) of every light at one rotation (2,)."""
@@ -112,6 +132,10 @@ class BandFollower:
         prior = np.asarray(prior_angles_rad, dtype=np.float64).reshape(2)
         if g.shape[0] < fp.min_matches:
             return None
+        if self.compiled and kernels.ENABLED:
+            got = self._follow_compiled(g, lo, hi, prior, 1.0 if prior_term else 0.0)
+            if got is not follow_kernel.FALLBACK:
+                return got
         pred, cand, _ = self._candidates(prior, lo, hi)
         assign, _ = m._assign(g, pred, cand, p.prior_gate_px)
         x, fit, prev = prior, None, None
@@ -144,6 +168,21 @@ class BandFollower:
         h = _Hypothesis(x.copy(), assign, dist, pred, cand, score, fit.iterations, True)
         match = m._result(g, h, margin, p.min_matches)
         return Followed(match, fit) if match.ok else None
+
+    def _follow_compiled(self, g, lo, hi, prior, weight):
+        """follow's answer by :func:`follow_kernel.follow_band`, or FALLBACK where an
+        assignment needs the optimal solver (the Python form below then runs)."""
+        k = g.shape[0]
+        assign, dist, conf = np.empty(k, dtype=np.int64), np.empty(k), np.empty(k)
+        x, center, JtJ = np.empty(2), np.empty(3), np.zeros((2, 2))
+        outcome, score, margin, rms, cost, m, iters = follow_kernel.follow_band(
+            np.ascontiguousarray(g), lo, hi, prior, weight, *self._fixed, assign, dist, conf, x,
+            center, JtJ)
+        if outcome != follow_kernel.ACCEPTED:
+            return None if outcome == follow_kernel.DECLINED else follow_kernel.FALLBACK
+        fit = SmallFit(x.copy(), math.sqrt(max(cost, 0.0) / m), JtJ, int(iters), True)
+        match = GlintMatch(assign, conf, dist, center, x, rms, score, margin, int(iters), OK)
+        return Followed(match, fit)
 
     def _candidates(self, angles, lo, hi):
         """Predicted glints (n, 2), candidates and glints well inside the band (n,)."""

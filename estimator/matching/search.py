@@ -15,9 +15,14 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 import estimator.matching.kernels as kernels
+import estimator.matching.refine_kernel as refine_kernel
 
 from ..cornea import fit_cornea, fit_replica, fit_small
+from ..cornea.small import XTOL_M
 from .model import _Hypothesis
+
+#: The shifts along the arcs the search tries (lights), and their column in the shift table.
+_STEPS = {-2: 0, -1: 1, 1: 2, 2: 3}
 
 
 class HypothesisSearch:
@@ -27,7 +32,19 @@ class HypothesisSearch:
 
     def _shift(self, assign, step: int) -> np.ndarray:
         """Every matched light moved ``step`` places along its own arc (-1 where that leaves
-        the arc)."""
+        the arc); steps of one and two lights by a table of every light's (built once)."""
+        col = _STEPS.get(step)
+        if col is not None:
+            table = getattr(self, "_shift_table", None)
+            if table is None:
+                every = np.arange(self.lights_world_m.shape[0])
+                table = np.stack([self._shift_any(every, s) for s in _STEPS], axis=1)
+                self._shift_table = table
+            return np.where(assign >= 0, table[assign, col], -1)
+        return self._shift_any(assign, step)
+
+    def _shift_any(self, assign, step: int) -> np.ndarray:
+        """:meth:`_shift` of any step, from the arcs."""
         out = np.full_like(assign, -1)
         m = assign >= 0
         moved = assign[m] + step
@@ -256,6 +273,11 @@ class HypothesisSearch:
         ``fit_prior`` (mean, information) enters every refit."""
         p = self.params
         X = np.array(X, dtype=np.float64)
+        if (fit_prior is not None and p.model == "orbit" and kernels.ENABLED
+                and refine_kernel.ENABLED):
+            got = self._refine_compiled(g, lo, hi, X, first_gate, first_assign, fit_prior)
+            if got is not None:
+                return got
         H = X.shape[0]
         gate = np.full(H, first_gate)
         prev: list = [None] * H
@@ -324,6 +346,45 @@ class HypothesisSearch:
             out.append(_Hypothesis(X[a].copy(), assign, dist, pred[a], cand[a], float(score),
                                    int(iters[keep[a]]), bool(ok[a])))
         return out
+
+    def _refine_compiled(self, g, lo, hi, X, first_gate, first_assign, fit_prior):
+        """:meth:`_refine` with a prior on the orbit by :func:`refine_kernel.refine_prior`, or
+        None where an assignment needs the optimal solver (the Python form then runs)."""
+        if getattr(self, "_refine_args", None) is None:
+            eye, problem, p = self.eye, self.problem, self.params
+            rco = float(problem.orbit_radius_m)
+            self._refine_args = (
+                *self.arrays, np.asarray(eye.rotation_center_m, dtype=np.float64),
+                float(eye.cornea_offset_m), float(eye.cornea_radius_m),
+                np.ascontiguousarray(self.lights_world_m, dtype=np.float64),
+                float(eye.cap_cos_min), np.asarray(problem.eye_center_m, dtype=np.float64), rco,
+                float(problem.cornea_radius_m), XTOL_M / rco,
+                np.ascontiguousarray(self.group, dtype=np.int64), float(p.gate_px),
+                float(p.band_margin_px), float(p.noise_px), float(p.unmatched_cost),
+                float(p.missing_cost), int(p.max_iter))
+        H, k, n = X.shape[0], g.shape[0], self.lights_world_m.shape[0]
+        first = np.full((H, k), -1, dtype=np.int64)
+        has_first = np.zeros(H, dtype=np.bool_)
+        if first_assign is not None:
+            for h, a in enumerate(first_assign):
+                if a is not None:
+                    first[h], has_first[h] = a, True
+        mean, info = fit_prior
+        X_out, dist = np.empty((H, 2)), np.empty((H, k))
+        assign = np.empty((H, k), dtype=np.int64)
+        pred, cand = np.empty((H, n, 2)), np.empty((H, n), dtype=np.bool_)
+        score, iters = np.empty(H), np.empty(H, dtype=np.int64)
+        ok, alive = np.empty(H, dtype=np.bool_), np.empty(H, dtype=np.bool_)
+        outcome = refine_kernel.refine_prior(
+            np.ascontiguousarray(g, dtype=np.float64), lo, hi, X, first, has_first,
+            float(first_gate), *self._refine_args, np.asarray(mean, dtype=np.float64),
+            np.ascontiguousarray(info, dtype=np.float64), X_out, assign, dist, pred, cand,
+            score, iters, ok, alive)
+        if outcome != refine_kernel.REFINED:
+            return None
+        return [_Hypothesis(X_out[h].copy(), assign[h], dist[h], pred[h], cand[h],
+                            float(score[h]), int(iters[h]), bool(ok[h]))
+                for h in np.flatnonzero(alive)]
 
     def _final_assign(self, g, pred, cand):
         """Assignment at the final gate with the arc order enforced, and its distances (NaN
