@@ -112,7 +112,7 @@ class BandFollower:
             float(p.noise_px), float(p.unmatched_cost), float(p.missing_cost),
             math.radians(p.prior_sigma_deg), int(params.min_matches),
             math.radians(params.max_shift_deg), float(params.rival_margin),
-            int(p.min_matches), float(p.min_margin), MAX_ROUNDS)
+            int(p.min_matches), float(p.min_margin), MAX_ROUNDS, follow_kernel.MAX_NODES)
 
     def predict(self, angles_rad):
         """Glints (n, 2) and visibility (n,) of every light at one rotation (2,)."""

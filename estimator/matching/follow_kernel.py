@@ -9,11 +9,13 @@ same order inside one compiled function: the projection
 (:func:`estimator.geometry.compiled.glints_kernel`), the assignment where no two detections
 want one light (:func:`estimator.matching.kernels.nearest_assign`), the arcs' order
 (``enforce_order``), the small fit (:data:`estimator.cornea.small.lm_kernel`), the rival check
-(``rival_margin``) and the confidences. Where an assignment needs the optimal solver
-(scipy's ``linear_sum_assignment``, two detections wanting one light: a few bands in a
-hundred) it stops and says so (:data:`FALLBACK`), and the caller runs the Python form, which
-solves it: the two forms give the same identities, fits and scores
-(``tests/estimator/test_follow_kernel.py`` holds them to 1e-9 on rendered and synthetic bands).
+(``rival_margin``) and the confidences. Where two detections want one light the compiled
+optimal assignment (:func:`estimator.matching.kernels.optimal_assign`) gives what the Python
+form's ``linear_sum_assignment`` gives; where that search would visit more than
+:data:`MAX_NODES` nodes it stops and says so (:data:`FALLBACK`), and the caller runs the
+Python form. The two forms give the same identities, fits and scores
+(``tests/estimator/test_follow_kernel.py`` holds them to 1e-9 on synthetic bands with noise,
+hidden glints, clutter and priors up to 3 deg off, and end to end in the tracker).
 """
 
 from __future__ import annotations
@@ -25,11 +27,15 @@ import numpy as np
 from ..cornea.small import lm_kernel
 from ..geometry import compiled
 from ..geometry.compiled import glints_kernel
-from .kernels import ENABLED as _KERNELS, confidences, enforce_order, nearest_assign, rival_margin
+from .kernels import (ENABLED as _KERNELS, confidences, enforce_order, nearest_assign,
+                      optimal_assign, rival_margin)
 
 #: :func:`follow_band`'s outcomes: the band declined (the search decides), accepted (the
 #: outputs hold its match), or an assignment that needs the optimal solver (run the Python form).
 DECLINED, ACCEPTED, FALLBACK = 0, 1, 2
+#: The most nodes the compiled optimal assignment visits before the Python form takes the band
+#: (a sparse band's 1-4 detections with 1-3 candidates each visit tens).
+MAX_NODES = 20000
 #: Whether :func:`follow_band` is compiled (the matching kernels and the projection are).
 ENABLED = _KERNELS and compiled.ENABLED
 
@@ -59,16 +65,20 @@ def _candidates(cam, angles, rc, offset, radius, lights, cap, lo, hi, b, pred, v
         inside[n] = vis[n] and v >= lo + b and v <= hi - b
 
 
-def _assign(g, pred, cand, gate, assign, dist):
-    """The gated assignment where it needs no solver (:meth:`HypothesisSearch._assign`);
-    False where two detections want one light."""
+def _assign(g, pred, cand, gate, assign, dist, max_nodes):
+    """The gated optimal assignment (:meth:`HypothesisSearch._assign`): each detection's
+    nearest candidate where no two want one light, else the compiled optimal search
+    (:func:`estimator.matching.kernels.optimal_assign`); False where that search would visit
+    more than ``max_nodes`` nodes."""
     lights = np.flatnonzero(cand)
     if lights.size == 0:
         for d in range(g.shape[0]):
             assign[d] = -1
             dist[d] = math.nan
         return True
-    return nearest_assign(g, pred, lights, gate * gate, assign, dist)
+    if nearest_assign(g, pred, lights, gate * gate, assign, dist):
+        return True
+    return optimal_assign(g, pred, lights, gate * gate, assign, dist, max_nodes)
 
 
 def _fit(cam, g, lights, assign, x0, ce, rco, radius, xtol, pm, P, x, JtJ):
@@ -101,7 +111,7 @@ def follow_band(g, lo, hi, prior, weight, R, O, intr, size, rc, offset, radius, 
                 ce, rco, fit_radius, xtol, group, shifted, prior_gate_px, gate_px,
                 band_margin_px, noise_px, unmatched_cost, missing_cost, prior_sigma_rad,
                 follow_min_matches, max_shift_rad, rival_margin_min, match_min_matches,
-                min_margin, max_rounds, assign, dist, conf, x, center, JtJ):
+                min_margin, max_rounds, max_nodes, assign, dist, conf, x, center, JtJ):
     """:meth:`estimator.matching.BandFollower.follow` of detections ``g`` (k, 2) in rows
     [lo, hi] from ``prior`` (2,) rad (``weight`` 1 with the prior's term, 0 without).
 
@@ -131,7 +141,7 @@ def follow_band(g, lo, hi, prior, weight, R, O, intr, size, rc, offset, radius, 
     prev = np.empty(k, dtype=np.int64)
     _candidates(cam, prior, rc, offset, radius, lights, cap, lo, hi, band_margin_px, pred, vis,
                 cand, inside, center, axis, no_jac, False)
-    if not _assign(g, pred, cand, prior_gate_px, assign, dist):
+    if not _assign(g, pred, cand, prior_gate_px, assign, dist, max_nodes):
         return (FALLBACK, nan, nan, nan, nan, 0, 0)
     x0[0], x0[1] = prior[0], prior[1]
     cost, m, iters = nan, 0, 0
@@ -152,7 +162,7 @@ def follow_band(g, lo, hi, prior, weight, R, O, intr, size, rc, offset, radius, 
             prev[d] = assign[d]
         _candidates(cam, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px, pred, vis,
                     cand, inside, center, axis, no_jac, False)
-        if not _assign(g, pred, cand, gate_px, assign, dist):
+        if not _assign(g, pred, cand, gate_px, assign, dist, max_nodes):
             return (FALLBACK, nan, nan, nan, nan, 0, 0)
         enforce_order(g, pred, assign, group)
         same = True

@@ -70,6 +70,94 @@ def nearest_assign(g, pred, lights, gate2, assign, dist):
     return unique
 
 
+def optimal_assign(g, pred, lights, gate2, assign, dist, max_nodes):
+    """The gated optimal assignment where two detections want one light, by a depth-first
+    search over each detection's candidates within the gate (nearest first) and "unmatched"
+    (at the gate's cost ``gate2``), pruned by the cost so far plus each remaining detection's
+    least cost: the minimum of :meth:`HypothesisSearch._assign`'s problem (the sum of squared
+    distances of the matches plus ``gate2`` per unmatched detection) that scipy's
+    ``linear_sum_assignment`` solves there. Fills ``assign`` and ``dist`` (NaN unmatched)
+    and returns True; False (outputs untouched) where the search would visit more than
+    ``max_nodes`` nodes (the caller solves it)."""
+    k, m = g.shape[0], lights.shape[0]
+    opts = np.empty((k, m), dtype=np.int64)
+    od2 = np.empty((k, m))
+    nopt = np.zeros(k, dtype=np.int64)
+    for d in range(k):
+        for c in range(m):
+            light = lights[c]
+            dx = g[d, 0] - pred[light, 0]
+            dy = g[d, 1] - pred[light, 1]
+            d2 = dx * dx + dy * dy
+            if d2 > gate2:
+                continue
+            i = nopt[d]  # insertion, nearest first (the first on a tie)
+            while i > 0 and od2[d, i - 1] > d2:
+                opts[d, i] = opts[d, i - 1]
+                od2[d, i] = od2[d, i - 1]
+                i -= 1
+            opts[d, i] = c
+            od2[d, i] = d2
+            nopt[d] += 1
+    # The least cost of detections d.. (each its nearest candidate or the gate).
+    rest = np.zeros(k + 1)
+    for d in range(k - 1, -1, -1):
+        low = gate2 if nopt[d] == 0 else min(od2[d, 0], gate2)
+        rest[d] = rest[d + 1] + low
+    if k == 0:
+        return True
+    used = np.zeros(m, dtype=np.bool_)
+    held = np.zeros(k, dtype=np.bool_)  # whether detection d's current choice holds its light
+    choice = np.full(k, -1, dtype=np.int64)
+    best = np.full(k, -1, dtype=np.int64)
+    partial = np.zeros(k + 1)
+    best_cost = math.inf
+    nodes = 0
+    level = 0
+    while level >= 0:
+        d = level
+        if held[d]:
+            used[opts[d, choice[d]]] = False
+            held[d] = False
+        choice[d] += 1
+        if choice[d] > nopt[d]:
+            choice[d] = -1
+            level -= 1
+            continue
+        nodes += 1
+        if nodes > max_nodes:
+            return False
+        matched = choice[d] < nopt[d]
+        if matched:
+            c = opts[d, choice[d]]
+            if used[c]:
+                continue
+            cost = partial[d] + od2[d, choice[d]]
+        else:
+            cost = partial[d] + gate2
+        if cost + rest[d + 1] >= best_cost:
+            continue
+        if matched:
+            used[c] = True
+            held[d] = True
+        if d == k - 1:
+            best_cost = cost
+            for e in range(k):
+                best[e] = choice[e]
+        else:
+            partial[d + 1] = cost
+            level += 1
+            choice[level] = -1
+    for d in range(k):
+        if best[d] >= 0 and best[d] < nopt[d]:
+            assign[d] = lights[opts[d, best[d]]]
+            dist[d] = math.sqrt(od2[d, best[d]])
+        else:
+            assign[d] = -1
+            dist[d] = math.nan
+    return True
+
+
 def enforce_order(g, pred, assign, group):
     """Drop matches that break the lights' order along their arc, in place: repeatedly, the
     first (by arc, then light) neighbouring pair on one arc whose detections run against their
@@ -306,6 +394,7 @@ if ENABLED:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
     _rival_light = _jit(_rival_light)
     nearest_assign = _jit(nearest_assign)
+    optimal_assign = _jit(optimal_assign)
     enforce_order = _jit(enforce_order)
     rival_margin = _jit(rival_margin)
     confidences = _jit(confidences)

@@ -1,19 +1,21 @@
 """A sparse band's refinement from a prior (:meth:`estimator.matching.GlintMatcher.match_near`)
 as one compiled call (optional, Numba).
 
-``match_near`` refines up to five hypotheses of a band's 1-3 glints (the prior's assignment
+``match_near`` refines up to five hypotheses of a band's 1-4 glints (the prior's assignment
 and that assignment shifted by one or two lights along the arcs) through
 :meth:`HypothesisSearch._refine`: match, refit with the prior, re-predict, re-match until
 the assignment is stable, merge duplicates, a final assignment with the arcs' order, a refit
-where it changed the matches, and the score. In Python that is ~60 numpy and kernel calls per
-hypothesis, ~0.8 ms a band on an x86 core, where the arithmetic is ~50 us. :func:`refine_prior`
-runs the same steps in the same order inside one compiled function, on the same kernels
-(:func:`estimator.geometry.compiled.glints_kernel`,
-:func:`estimator.matching.kernels.nearest_assign` and ``enforce_order``, the small fit
-:data:`estimator.cornea.small.lm_kernel` with the prior's term). Where an assignment needs the
-optimal solver (two detections wanting one light) it stops and says so (:data:`FALLBACK`), and
-the caller runs the Python form. ``tests/estimator/test_refine_kernel.py`` holds the two
-forms to 1e-9 on sparse bands.
+where it changed the matches, and the score: ~60 numpy and kernel calls per hypothesis.
+:func:`refine_prior` runs the same steps in the same order inside one compiled function, on
+the same kernels (:func:`estimator.geometry.compiled.glints_kernel`,
+:func:`estimator.matching.kernels.nearest_assign`, ``optimal_assign`` where two detections
+want one light, ``enforce_order``, the small fit :data:`estimator.cornea.small.lm_kernel`
+with the prior's term). Measured on the quick validation's rendered frames (x86 core): a
+refinement ~100 us against the Python form's ~240 us, ``match_near`` ~175 against ~350 us.
+Where the optimal assignment would visit more than :data:`MAX_NODES` nodes it stops and
+says so (:data:`FALLBACK`), and the caller runs the Python form, whose
+``linear_sum_assignment`` solves it. ``tests/estimator/test_refine_kernel.py`` holds the two
+forms to 1e-9 on sparse bands, and the optimal assignment to ``linear_sum_assignment``.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import compiled
-from .follow_kernel import ENABLED, _assign, _candidates, _fit
+from .follow_kernel import ENABLED, MAX_NODES, _assign, _candidates, _fit  # noqa: F401
 from .kernels import enforce_order
 
 #: :func:`refine_prior`'s outcomes: the hypotheses are in the outputs, or an assignment
@@ -30,13 +32,13 @@ REFINED, FALLBACK = 1, 2
 
 
 def _final(cam, g, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px, gate_px, group,
-           pred, vis, cand, inside, center, axis, no_jac, assign, dist):
+           max_nodes, pred, vis, cand, inside, center, axis, no_jac, assign, dist):
     """Candidates at ``x`` and the final assignment (gate ``gate_px``, the arcs' order, NaN
     distances where unmatched) (:meth:`HypothesisSearch._final_assign`); False where the
     assignment needs the solver."""
     _candidates(cam, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px, pred, vis,
                 cand, inside, center, axis, no_jac, False)
-    if not _assign(g, pred, cand, gate_px, assign, dist):
+    if not _assign(g, pred, cand, gate_px, assign, dist, max_nodes):
         return False
     enforce_order(g, pred, assign, group)
     for d in range(assign.shape[0]):
@@ -47,8 +49,8 @@ def _final(cam, g, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px, g
 
 def refine_prior(g, lo, hi, X0, first, has_first, first_gate, R, O, intr, size, rc, offset,
                  radius, lights, cap, ce, rco, fit_radius, xtol, group, gate_px, band_margin_px,
-                 noise_px, unmatched_cost, missing_cost, max_iter, pm, P, X, assign_out,
-                 dist_out, pred_out, cand_out, score, iters, ok, alive):
+                 noise_px, unmatched_cost, missing_cost, max_iter, max_nodes, pm, P, X,
+                 assign_out, dist_out, pred_out, cand_out, score, iters, ok, alive):
     """:meth:`HypothesisSearch._refine` of the ``H`` starts ``X0`` (H, 2) rad with the prior
     (mean ``pm`` (2,), information ``P`` (2, 2), px²/rad²) in every refit, on the orbit.
 
@@ -98,7 +100,7 @@ def refine_prior(g, lo, hi, X0, first, has_first, first_gate, R, O, intr, size, 
                 _candidates(cam, X[h], rc, offset, radius, lights, cap, lo, hi, band_margin_px,
                             pred_out[h], vis, cand_out[h], inside[h], center, axis, no_jac,
                             False)
-                if not _assign(g, pred_out[h], cand_out[h], gate[h], a_h, d_h):
+                if not _assign(g, pred_out[h], cand_out[h], gate[h], a_h, d_h, max_nodes):
                     return FALLBACK
             any_match = False
             for d in range(k):
@@ -144,8 +146,8 @@ def refine_prior(g, lo, hi, X0, first, has_first, first_gate, R, O, intr, size, 
         if not alive[h]:
             continue
         if not _final(cam, g, X[h], rc, offset, radius, lights, cap, lo, hi, band_margin_px,
-                      gate_px, group, pred_out[h], vis, cand_out[h], inside[h], center, axis,
-                      no_jac, assign_out[h], dist_out[h]):
+                      gate_px, group, max_nodes, pred_out[h], vis, cand_out[h], inside[h],
+                      center, axis, no_jac, assign_out[h], dist_out[h]):
             return FALLBACK
         any_match = False
         changed = not has_prev[h]
@@ -159,8 +161,9 @@ def refine_prior(g, lo, hi, X0, first, has_first, first_gate, R, O, intr, size, 
                 X[h, 0], X[h, 1] = x[0], x[1]
             ok[h] = fitted
             if not _final(cam, g, X[h], rc, offset, radius, lights, cap, lo, hi,
-                          band_margin_px, gate_px, group, pred_out[h], vis, cand_out[h],
-                          inside[h], center, axis, no_jac, assign_out[h], dist_out[h]):
+                          band_margin_px, gate_px, group, max_nodes, pred_out[h], vis,
+                          cand_out[h], inside[h], center, axis, no_jac, assign_out[h],
+                          dist_out[h]):
                 return FALLBACK
         detected = np.zeros(n, dtype=np.bool_)
         sq = 0.0

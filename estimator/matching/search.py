@@ -361,7 +361,7 @@ class HypothesisSearch:
                 float(problem.cornea_radius_m), XTOL_M / rco,
                 np.ascontiguousarray(self.group, dtype=np.int64), float(p.gate_px),
                 float(p.band_margin_px), float(p.noise_px), float(p.unmatched_cost),
-                float(p.missing_cost), int(p.max_iter))
+                float(p.missing_cost), int(p.max_iter), refine_kernel.MAX_NODES)
         H, k, n = X.shape[0], g.shape[0], self.lights_world_m.shape[0]
         first = np.full((H, k), -1, dtype=np.int64)
         has_first = np.zeros(H, dtype=np.bool_)

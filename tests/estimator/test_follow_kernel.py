@@ -98,9 +98,10 @@ def test_compiled_follow_is_the_python_follow(follower):
     assert accepted >= 100 and declined >= 50, (accepted, declined)
 
 
-def test_two_detections_on_one_light_go_to_the_python_form(follower):
-    """Two detections 0.4 px apart on one glint: the gated assignment needs the optimal
-    solver, the compiled call says FALLBACK, and follow's answer is the Python form's."""
+def test_two_detections_on_one_light(follower):
+    """Two detections 0.4 px apart on one glint: the compiled optimal assignment solves the
+    band as the Python form's linear_sum_assignment does; where it may visit no node the
+    compiled call says FALLBACK, and follow's answer is the Python form's."""
     truth = np.radians([3.0, -1.0])
     g, vis = follower.predict(truth)
     v = g[vis, 1]
@@ -109,13 +110,20 @@ def test_two_detections_on_one_light_go_to_the_python_form(follower):
     assert inband.size >= 6
     det = np.concatenate([g[inband], g[inband[:1]] + 0.4])
     fo = follower
-    m = fo.matcher
-    gg, lo, hi = m._inputs(det, rows)
+    gg, lo, hi = fo.matcher._inputs(det, rows)
     prior = truth + np.radians([0.1, 0.05])
     got = fo._follow_compiled(gg, lo, hi, prior, 1.0)
-    assert got is follow_kernel.FALLBACK
+    assert got is not follow_kernel.FALLBACK and got is not None
+    assert (got.match.light_index == inband[0]).sum() == 1
     a, b = both(fo, det, rows, prior, True)
     assert same(a, b)
+    fixed = fo._fixed
+    fo._fixed = (*fixed[:-1], 0)  # max_nodes 0: the optimal assignment always gives up
+    try:
+        assert fo._follow_compiled(gg, lo, hi, prior, 1.0) is follow_kernel.FALLBACK
+        assert same(fo.follow(det, rows, prior), b)
+    finally:
+        fo._fixed = fixed
 
 
 @pytest.mark.parametrize("method", ["polynomial", "geometric"])

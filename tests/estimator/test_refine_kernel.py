@@ -94,7 +94,10 @@ def test_compiled_refinement_is_the_python_refinement(matcher):
     assert reasons.get("ok", 0) >= 100 and sum(reasons.values()) - reasons["ok"] >= 30, reasons
 
 
-def test_two_detections_on_one_light_go_to_the_python_form(matcher):
+def test_two_detections_on_one_light(matcher):
+    """Two detections 0.5 px apart on one glint: the compiled refinement solves the band's
+    assignments as the Python form does; where its optimal assignment may visit no node it
+    hands the band to the Python form (None)."""
     truth = np.radians([2.0, 1.0])
     g, vis = matcher._predict_one(*truth)
     i = int(np.flatnonzero(vis)[0])
@@ -103,13 +106,48 @@ def test_two_detections_on_one_light_go_to_the_python_form(matcher):
     mean, cov = truth + np.radians([0.05, 0.0]), np.radians(0.2) ** 2 * np.eye(2)
     gg, lo, hi = matcher._inputs(det, rows)
     info = (mean, matcher.params.noise_px ** 2 * np.linalg.inv(cov))
-    got = matcher._refine_compiled(gg, lo, hi, mean[None], matcher.params.gate_px, None, info)
-    assert got is None  # FALLBACK: the assignment needs the optimal solver
+    args = (gg, lo, hi, mean[None], matcher.params.gate_px, None, info)
+    assert matcher._refine_compiled(*args) is not None
     a, b = both(lambda: matcher.match_near(det, mean, cov, rows=rows))
     same_match(a, b)
-    assert a.ok and sorted(a.light_index.tolist()).count(i) == 1
+    assert a.ok and a.light_index.tolist().count(i) == 1
+    saved = matcher._refine_args
+    matcher._refine_args = (*saved[:-1], 0)  # max_nodes 0: the optimal assignment gives up
+    try:
+        assert matcher._refine_compiled(*args) is None
+    finally:
+        matcher._refine_args = saved
 
 
+def test_the_compiled_optimal_assignment_is_linear_sum_assignment(matcher):
+    """kernels.optimal_assign against HypothesisSearch._assign's linear_sum_assignment on
+    2,000 random bands where detections compete for lights (2-7 detections, 3-12 candidates
+    within a few gates): the same assignment and distances."""
+    from estimator.matching import kernels
+
+    rng = np.random.default_rng(17)
+    n = matcher.lights_world_m.shape[0]
+    conflicts = 0
+    for _ in range(2000):
+        gate = 3.0
+        m = int(rng.integers(3, 13))
+        lights = np.sort(rng.choice(n, m, replace=False))
+        pred = np.zeros((n, 2))
+        pred[lights] = rng.uniform(0, 8.0, (m, 2))
+        k = int(rng.integers(2, 8))
+        g = rng.uniform(0, 8.0, (k, 2))
+        cand = np.zeros(n, dtype=bool)
+        cand[lights] = True
+        a0, d0 = np.empty(k, dtype=np.int64), np.empty(k)
+        if kernels.nearest_assign(g, pred, lights, gate * gate, a0, d0):
+            continue
+        conflicts += 1
+        want, want_d = matcher._assign(g, pred, cand, gate)  # linear_sum_assignment
+        a, d = np.empty(k, dtype=np.int64), np.empty(k)
+        assert kernels.optimal_assign(g, pred, lights, gate * gate, a, d, 10 ** 6)
+        assert np.array_equal(a, want)
+        assert np.allclose(d, want_d, rtol=1e-12, atol=0, equal_nan=True)
+    assert conflicts >= 1000
 @pytest.mark.parametrize("method", ["polynomial", "geometric"])
 def test_the_tracker_gives_the_same_samples(setup, calibration, method):  # noqa: F811
     """End to end on saccade frames: the same samples, reasons and identities, estimates to
