@@ -44,14 +44,13 @@ import estimator.matching.kernels as match_kernels
 from .banding import band_rows, strobe_instant
 from .calibration import Calibration
 from .cornea import fit_covariance, fit_small
+from .estimates import assisted_estimate, searched_estimate
 from .eye import gaze_direction
 from .gaze import (
-    ANGLE_BOUND_RAD,
     calibrated_problems,
     geometric_gaze,
     polynomial_gaze,
     posterior_covariance,
-    prior_information,
     screen_intersection,
 )
 from .glints import NO_BAND, DetectionParams, GlintDetector
@@ -274,27 +273,35 @@ class Tracker:
         if lights.size < MIN_GLINTS:
             return failed_sample(f, j, time_s, "too_few_glints", g[used], lights)
         glints = self._glints(g[used], lights)
-        if self.method == "polynomial":
+        quick = None
+        if self.follower is not None and match_kernels.ENABLED and not self.calibration.conic:
+            quick = searched_estimate(self._problems, self.method, g[used], lights, self._start,
+                                      match.cornea_center_m, self.follower.arrays,
+                                      self._gaze_point, MAX_RESIDUAL_PX)
+        if quick is not None:
+            (xy, center, rms, resume), reason = quick, "ok"
+        elif self.method == "polynomial":
             est = polynomial_gaze(self.setup, self.calibration, glints, mapping=self.mapping,
                                   start=self._start, problems=self._problems)
         else:
             est = geometric_gaze(self.setup, self.calibration, glints,
                                  start=(0.0, 0.0) if self._start is None else self._start,
                                  problems=self._problems)
-        reason = self._reason(est)
+        if quick is None:
+            reason, xy, center = self._reason(est), est.screen_xy_m[0], est.cornea_center_m[0]
+            rms, resume = float(est.rms_px[0]), est.resume_from
         if reason == "ok" and self._implausible(time_s, match.angles_rad):
             reason = IMPLAUSIBLE_JUMP
         if reason != "ok":
             return failed_sample(f, j, time_s, reason, g[used], lights)
         self._prior_angles = match.angles_rad
-        self._start = est.resume_from
+        self._start = resume.copy()
         if self._orbit is not None:
             mask = np.isfinite(glints[..., 0])
             cov = fit_covariance(self._orbit, match.angles_rad, mask, model="orbit",
                                  noise_px=self.prior.noise_px)[0]
             self._set_state(time_s, match.angles_rad, cov)
-        return GazeSample(f, j, time_s, est.screen_xy_m[0].copy(), est.cornea_center_m[0].copy(),
-                          g[used], lights, float(est.rms_px[0]), "ok",
+        return GazeSample(f, j, time_s, xy.copy(), center.copy(), g[used], lights, rms, "ok",
                           match.confidence[used].copy())
 
     def _cheap(self, f, j, time_s, g, rows) -> GazeSample | None:
@@ -417,27 +424,13 @@ class Tracker:
                           match.confidence[used].copy(), prior_assisted=True)
 
     def _assisted_fit(self, glints_px, lights, mean, cov):
-        """A prior-assisted band's estimate by the compiled small fit with the prior (the
-        orbit fit with the prior that both gaze methods make, from the prior's mean, as
-        :func:`estimator.gaze.geometric_gaze`): (screen point, cornea centre, angles, RMS,
-        the glints' JᵀJ), or None where it does not give an accepted estimate (the batched
-        fit then decides, and names the failure)."""
+        """A prior-assisted band's estimate by the compiled small fit with the prior
+        (:func:`estimator.estimates.assisted_estimate`), or None (the batched fits decide)."""
         if not match_kernels.ENABLED:
             return None
-        orbit = self._problems.orbit
-        info = prior_information(cov, self.prior.noise_px)[0]
-        if not np.isfinite(info).all():
-            return None
-        fit = fit_small(orbit, glints_px, orbit.lights_world_m[lights], mean, model="orbit",
-                        arrays=self.follower.arrays, prior_mean=mean, prior_information=info)
-        if not (fit.ok and fit.rms_px <= MAX_RESIDUAL_PX
-                and np.abs(fit.x).max() < ANGLE_BOUND_RAD):
-            return None
-        center = orbit.eye_center_m + orbit.orbit_radius_m * gaze_direction(fit.x[0], fit.x[1])
-        xy = self._gaze_point(center, fit.x)
-        if not np.isfinite(xy).all():
-            return None
-        return xy, center, fit.x, float(fit.rms_px), fit.JtJ
+        return assisted_estimate(self._problems.orbit, glints_px, lights, mean, cov,
+                                 self.prior.noise_px, self.follower.arrays, self._gaze_point,
+                                 MAX_RESIDUAL_PX)
 
     def _gaze_point(self, center_m, angles_rad) -> np.ndarray:
         """The screen point (2,) of one estimate: the mapping of its cornea centre

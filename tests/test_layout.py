@@ -31,7 +31,7 @@ LAYERS = {
         {"gaze"},
         {"glints", "capture"},
         {"matching"},
-        {"tracker", "samples"},
+        {"tracker", "samples", "estimates"},
         {"inputs", "folders"},
         {"live"},
     ],

@@ -1,0 +1,81 @@
+"""One band's estimate by the compiled small fit (:func:`estimator.cornea.fit_small`, the
+sphere's) once the tracker knows its glints' identities: after the hypothesis search
+(:func:`searched_estimate`) and for a band identified from the prior
+(:func:`assisted_estimate`).
+
+The batched fits of :mod:`estimator.gaze` (``polynomial_gaze``, ``geometric_gaze``) cost
+~1 ms a band in numpy for one sample; the small fit reaches the same minimum (to ~1e-9 m,
+``tests/estimator/test_cheap_path.py``) in ~20-40 us. Where it gives no accepted estimate (a
+fit that does not converge, a residual above the tracker's limit, an angle past
+:data:`estimator.gaze.ANGLE_BOUND_RAD`, no screen point) these return None and the tracker
+runs the batched fits, which decide and name the failure; a conic calibration, whose cornea
+the small fit does not model, always takes them (the caller's choice). Without Numba the
+tracker does not call these (``fit_small`` would run the batched fit itself).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .cornea import fit_small
+from .eye import gaze_direction
+from .gaze import ANGLE_BOUND_RAD
+from .samples import inverse_2x2
+
+
+def _orbit_center(orbit, angles):
+    """The cornea centre (3,) of Fick ``angles`` on the calibrated orbit."""
+    return orbit.eye_center_m + orbit.orbit_radius_m * gaze_direction(angles[0], angles[1])
+
+
+def searched_estimate(problems, method: str, glints_px, lights, start, match_center_m, arrays,
+                      gaze_point, max_residual_px: float):
+    """(screen point, cornea centre, RMS px, the next band's start) of a searched band's
+    identified glints (k, 2) of ``lights`` (k,), or None (the batched fits decide).
+
+    ``method`` "polynomial": the free centre (``problems.center``) from ``start`` (the last
+    estimate's centre) or, without one, the match's centre, as ``polynomial_gaze`` from the
+    stream's last centre; "geometric": the orbit (``problems.orbit``) from ``start`` (the
+    last estimate's angles, default the primary position), as ``geometric_gaze``.
+    ``gaze_point(center, angles)``: the tracker's screen point of an estimate."""
+    if method == "polynomial":
+        problem, model = problems.center, "center"
+        x0 = match_center_m if start is None else start
+    else:
+        problem, model = problems.orbit, "orbit"
+        x0 = np.zeros(2) if start is None else start
+    fit = fit_small(problem, glints_px, problem.lights_world_m[lights], x0, model=model,
+                    arrays=arrays)
+    if not (fit.ok and fit.rms_px <= max_residual_px):
+        return None
+    if model == "orbit":
+        if not np.abs(fit.x).max() < ANGLE_BOUND_RAD:
+            return None
+        center, angles = _orbit_center(problem, fit.x), fit.x
+    else:
+        center, angles = fit.x, None
+    xy = gaze_point(center, angles)
+    if not np.isfinite(xy).all():
+        return None
+    return xy, center, float(fit.rms_px), fit.x
+
+
+def assisted_estimate(orbit, glints_px, lights, mean, cov, noise_px: float, arrays, gaze_point,
+                      max_residual_px: float):
+    """A prior-assisted band's (screen point, cornea centre, angles, RMS, the glints' JᵀJ) by
+    the orbit fit with the prior that both gaze methods make, from the prior's mean (mean
+    (2,) rad, covariance ``cov`` (2, 2) rad², glint noise ``noise_px``), as
+    ``geometric_gaze`` with a prior; or None (the batched fits decide)."""
+    inv = inverse_2x2(cov)  # σ² Σ⁻¹ in closed form (prior_information's eigh: ~60 us)
+    if inv is None or not np.isfinite(inv).all():
+        return None
+    info = noise_px ** 2 * inv
+    fit = fit_small(orbit, glints_px, orbit.lights_world_m[lights], mean, model="orbit",
+                    arrays=arrays, prior_mean=mean, prior_information=info)
+    if not (fit.ok and fit.rms_px <= max_residual_px and np.abs(fit.x).max() < ANGLE_BOUND_RAD):
+        return None
+    center = _orbit_center(orbit, fit.x)
+    xy = gaze_point(center, fit.x)
+    if not np.isfinite(xy).all():
+        return None
+    return xy, center, fit.x, float(fit.rms_px), fit.JtJ
