@@ -43,7 +43,6 @@ import estimator.matching.follow_kernel as follow_kernel
 import estimator.matching.kernels as kernels
 
 from ..cornea import SmallFit, fit_small
-from ..cornea.small import XTOL_M
 from .matcher import GlintMatcher
 from .model import _Hypothesis
 from .params import OK, GlintMatch
@@ -99,15 +98,9 @@ class BandFollower:
         #: Whether follow runs as one compiled call (:mod:`estimator.matching.follow_kernel`;
         #: not while the matching kernels are switched off, :data:`kernels.ENABLED`).
         self.compiled = follow_kernel.ENABLED
-        eye, problem, p = matcher.eye, matcher.problem, matcher.params
-        rco = float(problem.orbit_radius_m)
+        p = matcher.params
         self._fixed = (
-            *self.arrays, np.asarray(eye.rotation_center_m, dtype=np.float64),
-            float(eye.cornea_offset_m), float(eye.cornea_radius_m),
-            np.ascontiguousarray(matcher.lights_world_m, dtype=np.float64),
-            float(eye.cap_cos_min), np.asarray(problem.eye_center_m, dtype=np.float64), rco,
-            float(problem.cornea_radius_m), XTOL_M / rco,
-            np.ascontiguousarray(matcher.group, dtype=np.int64), self._shifted,
+            *follow_kernel.orbit_args(matcher), self._shifted,
             float(p.prior_gate_px), float(p.gate_px), float(p.band_margin_px),
             float(p.noise_px), float(p.unmatched_cost), float(p.missing_cost),
             math.radians(p.prior_sigma_deg), int(params.min_matches),

@@ -24,7 +24,7 @@ import math
 
 import numpy as np
 
-from ..cornea.small import lm_kernel
+from ..cornea.small import XTOL_M, lm_kernel
 from ..geometry import compiled
 from ..geometry.compiled import glints_kernel
 from .kernels import (ENABLED as _KERNELS, confidences, enforce_order, nearest_assign,
@@ -38,6 +38,21 @@ DECLINED, ACCEPTED, FALLBACK = 0, 1, 2
 MAX_NODES = 20000
 #: Whether :func:`follow_band` is compiled (the matching kernels and the projection are).
 ENABLED = _KERNELS and compiled.ENABLED
+
+
+def orbit_args(matcher) -> tuple:
+    """The arguments :func:`follow_band` and :func:`estimator.matching.refine_kernel.refine_prior`
+    share, from a :class:`~estimator.matching.GlintMatcher` on the orbit: the camera arrays,
+    the orbit (rotation centre, cornea offset), the eye's r_c, lights and cap, the fit
+    problem's c_e, r_co, r_c and step tolerance, and the lights' arcs."""
+    eye, problem = matcher.eye, matcher.problem
+    rco = float(problem.orbit_radius_m)
+    return (*matcher.arrays, np.asarray(eye.rotation_center_m, dtype=np.float64),
+            float(eye.cornea_offset_m), float(eye.cornea_radius_m),
+            np.ascontiguousarray(matcher.lights_world_m, dtype=np.float64),
+            float(eye.cap_cos_min), np.asarray(problem.eye_center_m, dtype=np.float64), rco,
+            float(problem.cornea_radius_m), XTOL_M / rco,
+            np.ascontiguousarray(matcher.group, dtype=np.int64))
 
 
 def _pose(angles, rc, offset, center, axis):

@@ -14,11 +14,11 @@ from dataclasses import replace
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+import estimator.matching.follow_kernel as follow_kernel
 import estimator.matching.kernels as kernels
 import estimator.matching.refine_kernel as refine_kernel
 
 from ..cornea import fit_cornea, fit_replica, fit_small
-from ..cornea.small import XTOL_M
 from .model import _Hypothesis
 
 #: The shifts along the arcs the search tries (lights), and their column in the shift table.
@@ -351,15 +351,9 @@ class HypothesisSearch:
         """:meth:`_refine` with a prior on the orbit by :func:`refine_kernel.refine_prior`, or
         None where an assignment needs the optimal solver (the Python form then runs)."""
         if getattr(self, "_refine_args", None) is None:
-            eye, problem, p = self.eye, self.problem, self.params
-            rco = float(problem.orbit_radius_m)
+            p = self.params
             self._refine_args = (
-                *self.arrays, np.asarray(eye.rotation_center_m, dtype=np.float64),
-                float(eye.cornea_offset_m), float(eye.cornea_radius_m),
-                np.ascontiguousarray(self.lights_world_m, dtype=np.float64),
-                float(eye.cap_cos_min), np.asarray(problem.eye_center_m, dtype=np.float64), rco,
-                float(problem.cornea_radius_m), XTOL_M / rco,
-                np.ascontiguousarray(self.group, dtype=np.int64), float(p.gate_px),
+                *follow_kernel.orbit_args(self), float(p.gate_px),
                 float(p.band_margin_px), float(p.noise_px), float(p.unmatched_cost),
                 float(p.missing_cost), int(p.max_iter), refine_kernel.MAX_NODES)
         H, k, n = X.shape[0], g.shape[0], self.lights_world_m.shape[0]

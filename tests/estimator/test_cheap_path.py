@@ -135,14 +135,21 @@ def test_cheap_path_gives_the_search_samples(setup, calibration, method):  # noq
         if cheap:
             counts = tr.counts
     assert counts["cheap"] > counts["search"] > 0, "most bands take the cheap path, the first not"
-    for a, b in zip(out[False], out[True]):
-        assert a.reason == b.reason
-        assert np.array_equal(a.light_index, b.light_index)
-        if a.ok:
-            # Same glints, same model: the fits' minima agree to ~1e-9 m (test above); 1e-7 m
-            # of cornea centre is 1e-3 deg of gaze at most.
-            assert np.abs(a.cornea_center_m - b.cornea_center_m).max() < 1e-7
-            assert np.abs(a.screen_xy_m - b.screen_xy_m).max() < 1e-5
+    # Same glints, same model: the fits' minima agree to ~1e-9 m (test above); 1e-7 m of
+    # cornea centre is 1e-3 deg of gaze at most.
+    assert_same_samples(out[False], out[True], center_m=1e-7, screen_m=1e-5)
+
+
+def assert_same_samples(a, b, *, center_m, screen_m):
+    """Samples ``a`` and ``b`` of one stream agree: reasons, identities, and the estimates
+    to ``center_m`` (cornea centre) and ``screen_m`` (screen point)."""
+    assert len(a) == len(b) > 0
+    for x, y in zip(a, b):
+        assert x.reason == y.reason
+        assert np.array_equal(x.light_index, y.light_index)
+        if x.ok:
+            assert np.abs(x.cornea_center_m - y.cornea_center_m).max() < center_m
+            assert np.abs(x.screen_xy_m - y.screen_xy_m).max() < screen_m
 
 
 def test_cheap_path_declines_a_prior_two_lights_off(setup, calibration):  # noqa: F811

@@ -12,7 +12,7 @@ import pytest
 from estimator.gaze import calibrated_problems
 from estimator.matching import BandFollower, FollowParams, GlintMatcher, follow_kernel
 from estimator.tracker import MIN_GLINTS, Tracker
-from tests.estimator.test_cheap_path import saccade_frames
+from tests.estimator.test_cheap_path import assert_same_samples, saccade_frames
 from tests.estimator.test_tracker import calibration, setup  # noqa: F401 fixtures
 
 pytestmark = pytest.mark.skipif(not follow_kernel.ENABLED, reason="Numba is not installed")
@@ -138,10 +138,4 @@ def test_the_tracker_gives_the_same_samples_compiled_or_not(setup, calibration, 
         out[compiled] = [s for f, img in enumerate(frames) for s in tr.process(img, f)]
         if compiled:
             assert tr.counts["cheap"] > 0
-    assert len(out[True]) == len(out[False])
-    for a, b in zip(out[True], out[False]):
-        assert a.reason == b.reason
-        assert np.array_equal(a.light_index, b.light_index)
-        if a.ok:
-            assert np.abs(a.cornea_center_m - b.cornea_center_m).max() < 1e-9
-            assert np.abs(a.screen_xy_m - b.screen_xy_m).max() < 1e-9
+    assert_same_samples(out[True], out[False], center_m=1e-9, screen_m=1e-9)

@@ -13,7 +13,7 @@ import pytest
 from estimator.gaze import calibrated_problems
 from estimator.matching import GlintMatcher, refine_kernel
 from estimator.tracker import Tracker
-from tests.estimator.test_cheap_path import saccade_frames
+from tests.estimator.test_cheap_path import assert_same_samples, saccade_frames
 from tests.estimator.test_tracker import calibration, setup  # noqa: F401 fixtures
 
 pytestmark = pytest.mark.skipif(not refine_kernel.ENABLED, reason="Numba is not installed")
@@ -158,14 +158,7 @@ def test_the_tracker_gives_the_same_samples(setup, calibration, method):  # noqa
         tr = Tracker(setup, calibration, method)
         return [s for f, img in enumerate(frames) for s in tr.process(img, f)]
 
-    a, b = both(track)
-    assert len(a) == len(b) > 0
-    for x, y in zip(a, b):
-        assert x.reason == y.reason
-        assert np.array_equal(x.light_index, y.light_index)
-        if x.ok:
-            assert np.abs(x.cornea_center_m - y.cornea_center_m).max() < 1e-9
-            assert np.abs(x.screen_xy_m - y.screen_xy_m).max() < 1e-9
+    assert_same_samples(*both(track), center_m=1e-9, screen_m=1e-9)
 
 
 def test_the_shift_table_is_the_arcs_shift(matcher):
