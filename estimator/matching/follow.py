@@ -92,9 +92,7 @@ class BandFollower:
         #: The camera as the compiled kernels take it (the matcher's).
         self.arrays = matcher.arrays
         # Each light's neighbour -2, -1, +1, +2 places along its own arc (-1 off the arc).
-        every = np.arange(matcher.lights_world_m.shape[0])
-        self._shifted = np.ascontiguousarray(
-            np.stack([matcher._shift(every, s) for s in (-2, -1, 1, 2)], axis=1), dtype=np.int64)
+        self._shifted = matcher.shift_table()
         #: Whether follow runs as one compiled call (:mod:`estimator.matching.follow_kernel`;
         #: not while the matching kernels are switched off, :data:`kernels.ENABLED`).
         self.compiled = follow_kernel.ENABLED

@@ -35,13 +35,19 @@ class HypothesisSearch:
         the arc); steps of one and two lights by a table of every light's (built once)."""
         col = _STEPS.get(step)
         if col is not None:
-            table = getattr(self, "_shift_table", None)
-            if table is None:
-                every = np.arange(self.lights_world_m.shape[0])
-                table = np.stack([self._shift_any(every, s) for s in _STEPS], axis=1)
-                self._shift_table = table
-            return np.where(assign >= 0, table[assign, col], -1)
+            return np.where(assign >= 0, self.shift_table()[assign, col], -1)
         return self._shift_any(assign, step)
+
+    def shift_table(self) -> np.ndarray:
+        """(n, 4) int64: each light moved -2, -1, +1, +2 places along its own arc (-1 off the
+        arc), built once."""
+        table = getattr(self, "_shift_table", None)
+        if table is None:
+            every = np.arange(self.lights_world_m.shape[0])
+            table = np.ascontiguousarray(
+                np.stack([self._shift_any(every, s) for s in _STEPS], axis=1), dtype=np.int64)
+            self._shift_table = table
+        return table
 
     def _shift_any(self, assign, step: int) -> np.ndarray:
         """:meth:`_shift` of any step, from the arcs."""
