@@ -229,7 +229,7 @@ def cmd_track(args) -> int:
                                       timeout_s=args.timeout, progress=update)
         else:
             summary = track_folder(args.dir, setup, cal, args.out, method=args.method,
-                                   progress=update)
+                                   progress=update, flag_cut_glints=args.flag_cut_glints)
     finally:
         bar.close()
     print(f"{len(summary.samples)} gaze samples from {summary.frames} frames "
@@ -396,6 +396,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "dataset's last frame or --timeout seconds without a new frame")
     p.add_argument("--timeout", type=finite(0.001, 86400.0), default=5.0,
                    help="with --follow: seconds without a new frame before stopping (default 5)")
+    p.add_argument("--flag-cut-glints", action="store_true",
+                   help="drop glints whose flux is far below the calibration's expected flux "
+                        "(cut by a lash) and refit without them; not with --follow")
     p.set_defaults(func=cmd_track)
 
     add_dataset_parsers(sub)
