@@ -24,16 +24,24 @@ import estimator.matching.kernels as match_kernels
 from .estimates import searched_estimate
 from .eye import CORNEA_REFRACTIVE_INDEX
 from .gaze import geometric_gaze, polynomial_gaze
+from .geometry import camera_arrays, glints_one_pose
+from .geometry.compiled import glints_kernel
 from .samples import FLUX_CUT_GLINTS, GazeSample, failed_sample
 
-#: A glint whose log(measured / expected flux) is below -FLUX_FLAG_SD times the calibration's
-#: own spread (:attr:`estimator.calibration.GlintFlux.log_sd`; dimensionless log units) is
-#: taken as cut by a lash. Clear glints' fluxes on lashless renders spread by a log-SD of 0.21
-#: (conductor cornea, 4 spp, 320 x 240) to 0.28 (dielectric, 4 spp) and 0.16 (dielectric,
-#: 16 spp): the Monte Carlo noise of the few rays that see a sub-pixel glint, which no model
-#: of the pose removes. Glints cut by a lash keep a median 0.64 of their flux (log -0.45);
-#: 2.5 SD flags 0.6 % of clear glints where they spread normally.
-FLUX_FLAG_SD = 2.5
+#: A glint is taken as cut by a lash where both its log(measured / expected flux) is below
+#: -FLUX_FLAG_SD times the calibration's own spread (:attr:`GlintFlux.log_sd`, dimensionless
+#: log units) and its centroid is further than RESIDUAL_FLAG times the calibration's RMS glint
+#: residual (:attr:`GlintFlux.noise_px`, px) from where the fitted pose puts it: a lash that
+#: dims a glint without moving it does the fit no harm, and flux alone is noisy. Clear glints'
+#: fluxes spread by a log-SD of 0.16 (dielectric cornea, 16 spp, 320 x 240) to 0.21-0.28 (4 spp,
+#: conductor / dielectric): the Monte Carlo noise of the few rays that see a sub-pixel glint,
+#: which no model of the pose removes. Measured on 48 frames with 40 lashes (16 spp; 1568
+#: clear and 145 lash-cut glints of accepted samples): flux alone at 2.5 SD flagged 71 cut and
+#: 49 clear glints; with the residual at 1.2 x 0.166 px, 2.0 SD flags 69 cut and 21 clear
+#: (1.5 SD and 1.6 x: 62 and 9). At 4 spp neither separates them (14 cut of 104, 39 of 1459
+#: clear).
+FLUX_FLAG_SD = 2.0
+RESIDUAL_FLAG = 1.2
 
 
 def log_ratios(pos, R, intrinsics, center, r, lights_world, light_index, used, g, flux,
@@ -85,16 +93,53 @@ def log_ratios(pos, R, intrinsics, center, r, lights_world, light_index, used, g
     return out
 
 
+def flag_kernel(R, O, intr, size, center, r, lights_world, light_index, used, g, flux,
+                log_power, dielectric: bool, n: float, floor: float, max_off_px: float,
+                out) -> None:
+    """:func:`flagged`'s test in one compiled call: ``out`` (k,) True where the
+    :func:`log_ratios` is below ``floor`` and (``max_off_px`` >= 0) the glint of the light at
+    the pose (``glints_kernel``, projected for those glints only) is more than ``max_off_px``
+    from the centroid."""
+    ratios = log_ratios(O, R, intr, center, r, lights_world, light_index, used, g, flux,
+                        log_power, dielectric, n)
+    k = used.shape[0]
+    m = 0
+    for a in range(k):
+        out[a] = ratios[a] < floor
+        m += out[a]
+    if m == 0 or max_off_px < 0:
+        return
+    low = np.empty((m, 3))
+    at = np.empty(m, dtype=np.int64)
+    b = 0
+    for a in range(k):
+        if out[a]:
+            low[b] = lights_world[light_index[a]]
+            at[b] = a
+            b += 1
+    pred = np.empty((m, 2))
+    vis = np.empty(m, dtype=np.bool_)
+    glints_kernel(R, O, intr, size, center, r, low, np.zeros(3), 0.0, False, pred, vis, False,
+                  np.empty((0, 2, 3)))
+    for b in range(m):
+        a = at[b]
+        du, dv = pred[b, 0] - used[a, 0], pred[b, 1] - used[a, 1]
+        out[a] = du * du + dv * dv > max_off_px * max_off_px  # NaN (no glint there): False
+
+
 if match_kernels.ENABLED:
     import numba
 
-    log_ratios = numba.njit(cache=True, nogil=True, error_model="numpy")(log_ratios)
+    _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+    log_ratios = _jit(log_ratios)
+    flag_kernel = _jit(flag_kernel)
 
 
 def flagged(calibration, camera, lights_world_m, sample: GazeSample, g, flux,
-            floor: float) -> np.ndarray:
-    """(k,) bool: which of ``sample``'s glints have log(measured / expected flux) below
-    ``floor``.
+            arrays=None) -> np.ndarray:
+    """(k,) bool: which of ``sample``'s glints are cut by a lash: log(measured / expected
+    flux) below -:data:`FLUX_FLAG_SD` log-SDs and the centroid more than
+    :data:`RESIDUAL_FLAG` x the calibration's noise from the glint of the sample's pose.
 
     Parameters
     ----------
@@ -109,24 +154,33 @@ def flagged(calibration, camera, lights_world_m, sample: GazeSample, g, flux,
         The band's detections.
     flux : (m,) float
         Their flux (DN, :attr:`estimator.glints.GlintDetections.intensity`).
-    floor : float
-        Log-ratio threshold (negative).
+    arrays : tuple, optional
+        :func:`estimator.geometry.camera_arrays` of ``camera``, when the caller keeps it.
     """
     used = sample.glints_px
     glint_flux, cornea_radius_m = calibration.glint_flux, calibration.cornea_radius_m
+    floor = -FLUX_FLAG_SD * glint_flux.log_sd
+    noise = glint_flux.noise_px
     if match_kernels.ENABLED:
-        intrinsics = np.array([camera.fx_px, camera.fy_px, camera.cx_px, camera.cy_px])
-        r = log_ratios(camera.position_m, camera.rotation, intrinsics, sample.cornea_center_m,
-                       float(cornea_radius_m), lights_world_m, sample.light_index, used, g, flux,
-                       glint_flux.log_power, glint_flux.fresnel == "dielectric",
-                       CORNEA_REFRACTIVE_INDEX)
-        return r < floor
+        out = np.empty(used.shape[0], dtype=np.bool_)
+        flag_kernel(*(camera_arrays(camera) if arrays is None else arrays),
+                    sample.cornea_center_m, float(cornea_radius_m), lights_world_m,
+                    sample.light_index, used, g, flux, glint_flux.log_power,
+                    glint_flux.fresnel == "dielectric", CORNEA_REFRACTIVE_INDEX, floor,
+                    RESIDUAL_FLAG * noise if np.isfinite(noise) else -1.0, out)
+        return out
     # The sample's glints are copies of detections: find their rows (k x m compares).
     rows = (g[:, None, 0] == used[None, :, 0]).argmax(axis=0)
     expected = glint_flux.expected(camera, sample.cornea_center_m, cornea_radius_m,
                                    lights_world_m, sample.light_index, used)
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.log(flux[rows] / expected) < floor
+        low = np.log(flux[rows] / expected) < floor
+    if low.any() and np.isfinite(noise):  # most bands have no dim glint
+        pred, _ = glints_one_pose(camera, sample.cornea_center_m, cornea_radius_m,
+                                  lights_world_m[sample.light_index[low]])
+        off = np.hypot(pred[:, 0] - used[low, 0], pred[:, 1] - used[low, 1])
+        low[low] = off > RESIDUAL_FLAG * noise
+    return low
 
 
 def refit_without(tracker, sample: GazeSample, bad, min_glints: int,

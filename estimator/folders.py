@@ -254,7 +254,7 @@ def calibrate_glint_flux(setup: Setup, calibration: Calibration, cg: Calibration
     c = np.where(centers.ok[:, None], centers.center_m, np.nan)
     return fit_glint_flux(setup.camera, calibration.cornea_radius_m,
                           calibration.lights_world_m(setup.lights_world_m), c, cg.glints_px,
-                          cg.flux)
+                          cg.flux, float(calibration.quality.get("rms_px", np.nan)))
 
 
 def calibrate_from_glints(setup: Setup, glints_px, targets_m, *,

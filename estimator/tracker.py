@@ -145,8 +145,7 @@ class Tracker:
         self.detection = detection
         if flag_cut_glints and calibration.glint_flux is None:
             raise ValueError("flag_cut_glints needs a calibration with glint_flux (recalibrate)")
-        self._flux_floor = (-cut_glints.FLUX_FLAG_SD * calibration.glint_flux.log_sd
-                            if flag_cut_glints else None)
+        self._flag_cut = bool(flag_cut_glints)
         # Detection reuses the sensor's noise model from frame to frame (measured again every
         # 30 frames, on a 5 % level drift, and after every reset of the stream).
         self._detector = GlintDetector(setup, detection)
@@ -216,7 +215,7 @@ class Tracker:
             det = det.select(~det.has(NO_BAND))
             glints, strobes, flux = det.glints_px, det.strobe_index, det.intensity
             return [self._band(frame_index, self._of_strobe(glints, strobes, b[0]), b, t,
-                               flux[strobes == b[0]] if self._flux_floor is not None else None)
+                               flux[strobes == b[0]] if self._flag_cut else None)
                     for b, t in zip(bands, times)]
         except Exception as exc:  # the stream must survive any one frame; the reason is logged
             # A bug, not bad input: logged with its traceback, counted by the run's summary.
@@ -259,9 +258,8 @@ class Tracker:
         """``sample`` without its glints cut by a lash (:mod:`estimator.cut_glints`)."""
         if flux is None or not sample.ok:
             return sample
-        bad = cut_glints.flagged(self.calibration, self.setup.camera,
-                                 self._problems.center.lights_world_m, sample, g, flux,
-                                 self._flux_floor)
+        lights, arrays = self._problems.center.lights_world_m, self.matcher.arrays
+        bad = cut_glints.flagged(self.calibration, self.setup.camera, lights, sample, g, flux, arrays)
         return (cut_glints.refit_without(self, sample, bad, MIN_GLINTS, MAX_RESIDUAL_PX)
                 if bad.any() else sample)
 

@@ -113,11 +113,15 @@ class GlintFlux:
     fresnel : {"dielectric", "constant"}
     log_sd : float
         Robust SD (1.4826 MAD) of log(measured / expected) over the calibration glints.
+    noise_px : float
+        The calibration's RMS glint residual (px): the scale of a glint's displacement from
+        the fitted pose that counts as a cut's (NaN: unknown, not used).
     """
 
     log_power: np.ndarray
     fresnel: str = "dielectric"
     log_sd: float = float("nan")
+    noise_px: float = float("nan")
 
     def __post_init__(self):
         p = np.asarray(self.log_power, dtype=np.float64).reshape(-1).copy()
@@ -127,6 +131,7 @@ class GlintFlux:
             raise ValueError(f"GlintFlux.fresnel must be one of {FRESNEL_MODELS}, "
                              f"got {self.fresnel!r}")
         object.__setattr__(self, "log_sd", float(self.log_sd))
+        object.__setattr__(self, "noise_px", float(self.noise_px))
 
     def expected(self, camera, cornea_center_m, cornea_radius_m, lights_world_m, light_index,
                  glints_px) -> np.ndarray:
@@ -140,7 +145,8 @@ class GlintFlux:
     def to_dict(self) -> dict:
         return {"fresnel": self.fresnel,
                 "log_power": [float(v) if np.isfinite(v) else None for v in self.log_power],
-                "log_sd": float(self.log_sd) if np.isfinite(self.log_sd) else None}
+                "log_sd": float(self.log_sd) if np.isfinite(self.log_sd) else None,
+                "noise_px": float(self.noise_px) if np.isfinite(self.noise_px) else None}
 
     @classmethod
     def from_dict(cls, doc: Doc, n_lights: int | None = None) -> "GlintFlux":
@@ -163,11 +169,17 @@ class GlintFlux:
         if sd is not None and (isinstance(sd, bool) or not isinstance(sd, (int, float))
                                or not 0 <= sd < 10):
             raise doc.error("log_sd", f"expected a number in [0, 10) or null, got {sd!r}")
-        return cls(out, fresnel, float("nan") if sd is None else float(sd))
+        noise = doc.raw("noise_px", required=False)
+        if noise is not None and (isinstance(noise, bool) or not isinstance(noise, (int, float))
+                                  or not 0 <= noise < 100):
+            raise doc.error("noise_px", f"expected a number of pixels in [0, 100) or null, "
+                                        f"got {noise!r}")
+        return cls(out, fresnel, float("nan") if sd is None else float(sd),
+                   float("nan") if noise is None else float(noise))
 
 
 def fit_glint_flux(camera, cornea_radius_m: float, lights_world_m, centers_m, glints_px,
-                   flux) -> GlintFlux:
+                   flux, noise_px: float = float("nan")) -> GlintFlux:
     """Each light's power from calibration frames: the median over frames of
     log(measured / model), for the Fresnel model whose log ratios spread less.
 
@@ -182,6 +194,8 @@ def fit_glint_flux(camera, cornea_radius_m: float, lights_world_m, centers_m, gl
         Identified glints (NaN: none).
     flux : (m, n) float
         Their measured flux (DN).
+    noise_px : float
+        The calibration's RMS glint residual, recorded (:attr:`GlintFlux.noise_px`).
     """
     lights = np.asarray(lights_world_m, dtype=np.float64)
     g = np.asarray(glints_px, dtype=np.float64)
@@ -207,5 +221,5 @@ def fit_glint_flux(camera, cornea_radius_m: float, lights_world_m, centers_m, gl
         res = (logr - power)[np.isfinite(logr - power)]
         sd = 1.4826 * float(np.median(np.abs(res - np.median(res)))) if res.size else np.inf
         if best is None or sd < best.log_sd:
-            best = GlintFlux(power, fresnel, sd)
+            best = GlintFlux(power, fresnel, sd, noise_px)
     return best
