@@ -216,7 +216,8 @@ def refit_without(tracker, sample: GazeSample, bad, min_glints: int,
         est = polynomial_gaze(tracker.setup, tracker.calibration, glints, mapping=tracker.mapping,
                               start=sample.cornea_center_m, problems=tracker._problems)
     else:
-        est = geometric_gaze(tracker.setup, tracker.calibration, glints, start=tracker._start,
+        start = (0.0, 0.0) if tracker._start is None else tracker._start
+        est = geometric_gaze(tracker.setup, tracker.calibration, glints, start=start,
                              problems=tracker._problems)
     reason = tracker._reason(est)
     if reason != "ok":

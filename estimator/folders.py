@@ -216,7 +216,9 @@ def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere")
     mappings from the fitted cornea centres: ``eq1_<m>`` (Eq. (1)) and ``quadratic_<m>``
     (minimum-norm where the orbit makes it rank deficient), m the number of frames used.
     ``cornea_model="conic"`` calibrates the conic constant Q with the rest
-    (:func:`estimator.calibration.calibrate_joint_conic`) and records it in the file.
+    (:func:`estimator.calibration.calibrate_joint_conic`) and records it in the file. A
+    spherical calibration also records each light's power for the glints' expected flux
+    (``glint_flux``, :func:`calibrate_glint_flux`: the tracker's check for glints cut by a lash).
     """
     check_conic(cornea_model, 0.0)
     cal_setup, cg = calibration_glints(folder, setup)

@@ -143,8 +143,10 @@ class Tracker:
                              f"(has {sorted(calibration.mappings)})")
         self.setup, self.calibration, self.method, self.mapping = setup, calibration, method, mapping
         self.detection = detection
-        if flag_cut_glints and calibration.glint_flux is None:
-            raise ValueError("flag_cut_glints needs a calibration with glint_flux (recalibrate)")
+        gf = calibration.glint_flux
+        if flag_cut_glints and (gf is None or gf.log_power.size != setup.lights.count):
+            raise ValueError(f"flag_cut_glints needs a calibration with glint_flux for the "
+                             f"{setup.lights.count} lights (recalibrate)")
         self._flag_cut = bool(flag_cut_glints)
         # Detection reuses the sensor's noise model from frame to frame (measured again every
         # 30 frames, on a 5 % level drift, and after every reset of the stream).

@@ -226,7 +226,8 @@ def cmd_track(args) -> int:
     try:
         if args.follow:
             summary = track_following(args.dir, setup, cal, args.out, method=args.method,
-                                      timeout_s=args.timeout, progress=update)
+                                      timeout_s=args.timeout, progress=update,
+                                      flag_cut_glints=args.flag_cut_glints)
         else:
             summary = track_folder(args.dir, setup, cal, args.out, method=args.method,
                                    progress=update, flag_cut_glints=args.flag_cut_glints)
@@ -398,7 +399,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --follow: seconds without a new frame before stopping (default 5)")
     p.add_argument("--flag-cut-glints", action="store_true",
                    help="drop glints whose flux is far below the calibration's expected flux "
-                        "(cut by a lash) and refit without them; not with --follow")
+                        "and off where the fitted pose puts them (cut by a lash), and refit "
+                        "without them (needs a calibration from this version's scet calibrate)")
     p.set_defaults(func=cmd_track)
 
     add_dataset_parsers(sub)

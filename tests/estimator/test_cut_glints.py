@@ -180,6 +180,9 @@ def test_calibration_file_round_trip_and_old_files(setup):
     assert old.glint_flux is None and "glint_flux" not in json.loads(cal.to_json())
     with pytest.raises(ValueError, match="glint_flux"):
         Tracker(setup, cal, "polynomial", flag_cut_glints=True)
+    short = replace(cal, glint_flux=GlintFlux(np.zeros(3), "constant", 0.2, 0.15))
+    with pytest.raises(ValueError, match="40 lights"):  # the file holds another rig's lights
+        Tracker(setup, short, "polynomial", flag_cut_glints=True)
 
 
 @pytest.mark.parametrize("value, key", [
@@ -225,3 +228,22 @@ def test_compiled_flag_is_the_numpy_flag(band, monkeypatch):
             m.setattr(match_kernels, "ENABLED", False)
             numpy_form = _flagged(tr, cal, sample, flux)
         assert np.array_equal(compiled, numpy_form)
+
+
+def test_track_folder_passes_the_flag_on(tmp_path, setup):
+    from estimator.folders import track_folder
+    from tests.estimator.test_tracker import write_folder
+
+    rng = np.random.default_rng(1)
+    yaw, pitch = setup.eye.angles_toward(setup.screen.grid(1, 1))
+    folder = write_folder(tmp_path / "run", setup,
+                          [draw_frame(setup, f, float(yaw[0]), float(pitch[0]), rng)
+                           for f in range(2)])
+    old = ground_truth_calibration(setup)
+    # A spread so wide that nothing is flagged: the flag changes no sample.
+    wide = replace(old, glint_flux=GlintFlux(np.zeros(setup.lights.count), "dielectric", 9.0,
+                                             0.2))
+    a = track_folder(folder, setup, wide, tmp_path / "a.csv").samples
+    b = track_folder(folder, setup, wide, tmp_path / "b.csv", flag_cut_glints=True).samples
+    assert [s.reason for s in a] == [s.reason for s in b] and sum(s.ok for s in b) > 0
+    assert all(s.flux_flagged.size == 0 for s in b)
