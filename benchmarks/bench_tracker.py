@@ -25,7 +25,12 @@ ratio per round, and the samples each estimates.
 Usage:
 
     python benchmarks/bench_tracker.py [--frames 60] [--rounds 3] [--dataset DIR [--pulses N]]
-                                       [--conic Q]
+                                       [--calibration FILE] [--conic Q]
+
+With ``--calibration FILE`` (a calibration with ``glint_flux``: ``scet calibrate`` of the
+dataset's calibration frames) it also times the cut-glint check
+(``Tracker(flag_cut_glints=True)``): microseconds per checked band, per refit, and the pass
+against the same tracker without it.
 
 60 frames are one second of video: a stream's first cold search and the searches after
 saccades that cross a frame gap weigh in as in a longer run.
@@ -52,11 +57,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench_glints import moving_sequence  # noqa: E402
 
+import estimator.cut_glints as cut_glints  # noqa: E402
 import estimator.estimates as estimates_module  # noqa: E402
 import estimator.matching.follow as follow_module  # noqa: E402
 import estimator.matching.kernels as match_kernels  # noqa: E402
 import estimator.tracker as tracker_module  # noqa: E402
-from estimator.folders import iter_folder  # noqa: E402
+from estimator.folders import iter_folder, load_calibration  # noqa: E402
 from estimator.glints import GlintDetector  # noqa: E402
 from estimator.scene import load_scene  # noqa: E402
 from estimator.tracker import OUT_OF_REACH, Tracker  # noqa: E402
@@ -167,6 +173,37 @@ def breakdown(setup, cal, method, frames, compiled=True) -> dict:
     return {"samples": len(samples), "wall": wall, **totals}
 
 
+def flux_cost(setup, cal, method, frames) -> dict:
+    """The cut-glint check's cost (``flag_cut_glints=True``, :mod:`estimator.cut_glints`):
+    seconds and calls of the check of accepted bands and of the refits without flagged glints,
+    and the pass's wall time against the same tracker without the check."""
+    totals, calls = defaultdict(float), defaultdict(int)
+    saved = (cut_glints.flagged, cut_glints.refit_without)
+
+    def timed(fn, stage):
+        def call(*a, **k):
+            t = time.perf_counter()
+            try:
+                return fn(*a, **k)
+            finally:
+                totals[stage] += time.perf_counter() - t
+                calls[stage] += 1
+        return call
+
+    cut_glints.flagged, cut_glints.refit_without = timed(saved[0], "check"), timed(saved[1], "refit")
+    try:
+        run(Tracker(setup, cal, method, flag_cut_glints=True), frames[:3])  # warm-up
+        totals.clear(), calls.clear()
+        samples, lat = run(Tracker(setup, cal, method, flag_cut_glints=True), frames)
+    finally:
+        cut_glints.flagged, cut_glints.refit_without = saved
+    off, lat_off = run(Tracker(setup, cal, method), frames)
+    return {"samples": len(samples), "wall": lat.sum(), "wall_off": lat_off.sum(),
+            "flagged": sum(s.flux_flagged.size for s in samples), **{f"{k}_s": v for k, v in
+                                                                      totals.items()},
+            **{f"{k}_n": v for k, v in calls.items()}}
+
+
 def conic_calibration(setup):
     """The exact calibration of ``setup``'s conic eye for the conic-aware tracker: as
     :func:`ground_truth_calibration`, with ``cornea_model = "conic"`` and the eye's Q, its
@@ -211,6 +248,9 @@ def main(argv=None):
     ap.add_argument("--frames", type=int, default=60)
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--dataset", type=Path, default=None)
+    ap.add_argument("--calibration", type=Path, default=None,
+                    help="calibration file with glint_flux (scet calibrate): also time the "
+                         "cut-glint check (Tracker flag_cut_glints) with it")
     ap.add_argument("--pulses", type=int, default=None,
                     help="pulses per frame of --dataset (default: the scene's; the quick "
                          "validation's test_p8 needs 8)")
@@ -304,6 +344,15 @@ def main(argv=None):
             per = {s: 1e6 * b[s] / b["samples"] for s in STAGES}
             print(f"  us per band ({name}): " + ", ".join(f"{s} {per[s]:.0f}" for s in STAGES)
                   + f"; total {1e6 * b['wall'] / b['samples']:.0f}")
+        if args.calibration is not None:
+            c = flux_cost(setup, load_calibration(args.calibration), method, frames)
+            print(f"  cut-glint check ({args.calibration.name}): "
+                  f"{1e6 * c.get('check_s', 0) / max(c.get('check_n', 0), 1):.1f} us per "
+                  f"checked band ({c.get('check_n', 0)} of {c['samples']}), refit "
+                  f"{1e6 * c.get('refit_s', 0) / max(c.get('refit_n', 0), 1):.0f} us per band "
+                  f"with a flag ({c.get('refit_n', 0)}, {c['flagged']} glints flagged); "
+                  f"pass {1e6 * c['wall'] / c['samples']:.0f} against "
+                  f"{1e6 * c['wall_off'] / c['samples']:.0f} us per band without the check")
         best = np.median(rates[True])
         print(f"  Raspberry Pi 3B+ estimate: {best / PI_FACTOR:.0f} samples/s per core "
               f"({best / PI_RANGE[1]:.0f}-{best / PI_RANGE[0]:.0f}; factor {PI_FACTOR:g}, "

@@ -14,8 +14,9 @@ Folders (rendered datasets, or prototype captures)::
 
 :func:`calibrate_from_folder` turns a folder of single-pulse calibration frames (every row lit
 by the same pulse, i.e. the same instant) into a :class:`~estimator.calibration.Calibration`;
-:func:`track_folder` writes ``samples.csv`` (format ``scet-samples``, version 2: version 1
-plus the ``prior`` column) atomically; :func:`read_samples_csv` reads both versions.
+:func:`track_folder` writes ``samples.csv`` (format ``scet-samples``, version 3: version 1
+plus the ``prior`` column (2) and ``flux_flagged`` (3)) atomically; :func:`read_samples_csv`
+reads all three.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from .calibration import (
     calibrate_joint_conic,
     calibration_warnings,
     fit_gaze_mapping,
+    fit_glint_flux,
     identify_on_conic,
 )
 from .capture import is_capture_folder
@@ -119,6 +121,7 @@ class CalibrationGlints:
     targets_m: np.ndarray
     frames: tuple
     detected: tuple = ()  # of (frame, target (3,), detections (k, 2))
+    flux: np.ndarray | None = None  # (m, n) the identified glints' flux (DN), NaN where missing
 
 
 #: Calibration frames: the least share of a pulse every visible row must collect (a row that
@@ -170,7 +173,7 @@ def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
     targets = read_targets(folder)
     matcher = GlintMatcher(cal_setup)
     n = cal_setup.lights.count
-    rows, used_targets, frames, detected = [], [], [], []
+    rows, used_targets, frames, detected, fluxes = [], [], [], [], []
     for f, _, img, err in iter_folder(folder, cal_setup):
         if err is not None or f not in targets:
             log.warning("calibration frame %d left out: %s", f, err or "no target in labels")
@@ -193,13 +196,16 @@ def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
             continue
         g = np.full((n, 2), np.nan)
         g[match.light_index[match.matched]] = det.glints_px[match.matched]
+        flux = np.full(n, np.nan)
+        flux[match.light_index[match.matched]] = det.intensity[match.matched]
         rows.append(g)
+        fluxes.append(flux)
         used_targets.append(targets[f])
         frames.append(f)
     if len(rows) < 4:
         raise TrackerInputError(f"{folder}: only {len(rows)} usable calibration frames, need >= 4")
     return cal_setup, CalibrationGlints(np.array(rows), np.array(used_targets), tuple(frames),
-                                        tuple(detected))
+                                        tuple(detected), np.array(fluxes))
 
 
 def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere") -> Calibration:
@@ -210,13 +216,17 @@ def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere")
     mappings from the fitted cornea centres: ``eq1_<m>`` (Eq. (1)) and ``quadratic_<m>``
     (minimum-norm where the orbit makes it rank deficient), m the number of frames used.
     ``cornea_model="conic"`` calibrates the conic constant Q with the rest
-    (:func:`estimator.calibration.calibrate_joint_conic`) and records it in the file.
+    (:func:`estimator.calibration.calibrate_joint_conic`) and records it in the file. A
+    spherical calibration also records each light's power for the glints' expected flux
+    (``glint_flux``, :func:`calibrate_glint_flux`: the tracker's check for glints cut by a lash).
     """
     check_conic(cornea_model, 0.0)
     cal_setup, cg = calibration_glints(folder, setup)
     total = len(read_targets(folder))
     cal = calibrate_from_glints(cal_setup, cg.glints_px, cg.targets_m, frames_total=total,
                                 cornea_model=cornea_model)
+    if cornea_model == "sphere":
+        cal = replace(cal, glint_flux=calibrate_glint_flux(cal_setup, cal, cg))
     if cornea_model == "conic":
         # The spherical matcher's identities of oblique glints are wrong on a conic cornea:
         # identify every detected frame again on the calibrated conic, and recalibrate.
@@ -233,6 +243,20 @@ def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere")
             cal = calibrate_from_glints(cal_setup, g[enough], targets[enough], frames_total=total,
                                         cornea_model="conic")
     return cal
+
+
+def calibrate_glint_flux(setup: Setup, calibration: Calibration, cg: CalibrationGlints):
+    """Each light's power (:func:`estimator.calibration.fit_glint_flux`) from the calibration
+    frames' identified glints and flux, at the cornea centres the calibration fits them to;
+    None without fluxes. The model is the sphere's: a conic calibration has none."""
+    if cg.flux is None or not len(cg.flux):
+        return None
+    mask = np.isfinite(cg.glints_px).all(axis=-1)
+    centers = fit_cornea_centers(setup, calibration, cg.glints_px, mask)
+    c = np.where(centers.ok[:, None], centers.center_m, np.nan)
+    return fit_glint_flux(setup.camera, calibration.cornea_radius_m,
+                          calibration.lights_world_m(setup.lights_world_m), c, cg.glints_px,
+                          cg.flux, float(calibration.quality.get("rms_px", np.nan)))
 
 
 def calibrate_from_glints(setup: Setup, glints_px, targets_m, *,
@@ -382,13 +406,16 @@ def track_frame(tracker: Tracker, frame: int, frame_start_s, image, error: str |
 
 def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "polynomial",
                  mapping: str | None = None,
-                 progress: Callable[[int, int], None] | None = None) -> TrackSummary:
+                 progress: Callable[[int, int], None] | None = None,
+                 flag_cut_glints: bool = False) -> TrackSummary:
     """Track every frame of a folder and write ``samples.csv`` atomically.
 
     Parameters
     ----------
     folder : path
         Frames and timing sidecar (or a rendered dataset's manifest).
+    flag_cut_glints : bool
+        :class:`~estimator.tracker.Tracker`'s: drop glints a lash cuts (by their flux).
     setup : Setup
     calibration : Calibration or path
         A calibration, or the path of a calibration file.
@@ -406,7 +433,8 @@ def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "p
     timing = read_timing(folder, setup)
     # The frames were taken with the sidecar's exposure and strobe where it gives them.
     setup = timing.apply(setup)
-    tracker = Tracker(setup, calibration, method, mapping=mapping)
+    tracker = Tracker(setup, calibration, method, mapping=mapping,
+                      flag_cut_glints=flag_cut_glints)
     total = len(timing.frame_start_s)
     samples = []
     busy = 0.0

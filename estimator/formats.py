@@ -37,9 +37,10 @@ __all__ = [
 ]
 
 TIMING_FORMAT, TIMING_VERSION = "scet-timing", 1
-SAMPLES_FORMAT, SAMPLES_VERSION = "scet-samples", 2
-#: Versions the samples reader accepts (version 1 has no ``prior`` column).
-SAMPLES_READABLE = (1, 2)
+SAMPLES_FORMAT, SAMPLES_VERSION = "scet-samples", 3
+#: Versions the samples reader accepts (version 1 has no ``prior`` column, 1-2 no
+#: ``flux_flagged``).
+SAMPLES_READABLE = (1, 2, 3)
 CALIBRATION_FORMAT, CALIBRATION_VERSION = "scet-calibration", 1
 MAPPING_FORMAT, MAPPING_VERSION = "scet-gaze-mapping", 1
 DATASET_FORMAT, DATASET_VERSION = "scet-dataset", 1

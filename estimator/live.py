@@ -123,14 +123,15 @@ def follow_frames(folder, setup: Setup, *, timeout_s: float = 5.0, poll_s: float
 def track_following(folder, setup: Setup, calibration, out_csv, *, method: str = "polynomial",
                     mapping: str | None = None, timeout_s: float = 5.0, poll_s: float = 0.005,
                     progress: Callable[[int, int], None] | None = None,
-                    **wait) -> TrackSummary:
+                    flag_cut_glints: bool = False, **wait) -> TrackSummary:
     """Track a folder's frames as they are written (:func:`follow_frames`) and write
     ``samples.csv`` when it ends; ``progress(done, total)`` after every frame (total: the
     frames so far, or a dataset's count). Other arguments as
     :func:`estimator.folders.track_folder`; ``wait`` goes to :func:`follow_frames`."""
     calibration, mapping = tracking_calibration(folder, calibration, out_csv, method=method,
                                                 mapping=mapping)
-    tracker = Tracker(setup, calibration, method, mapping=mapping)
+    tracker = Tracker(setup, calibration, method, mapping=mapping,
+                      flag_cut_glints=flag_cut_glints)
     expected = _expected_frames(Path(folder))
     samples, done, busy = [], 0, 0.0
     for f, t0, img, err in follow_frames(folder, setup, timeout_s=timeout_s, poll_s=poll_s,

@@ -1,7 +1,7 @@
 """The tracker's value types: :class:`GazeSample` (one band's estimate) and :class:`BandPrior`
 (the motion model of the prior a sparse band borrows from the previous sample),
 :func:`failed_sample` (a NaN sample with a reason), the samples CSV (format ``scet-samples``,
-version 2) and :class:`TrackerInputError`.
+version 3) and :class:`TrackerInputError`.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from __future__ import annotations
 import csv
 import io
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +37,9 @@ IMPLAUSIBLE_JUMP = "implausible_jump"
 #: a frame while the eye looks down, a band of lid clutter): the band is not searched (a search
 #: could match it only at a rotation :data:`IMPLAUSIBLE_JUMP` rejects) and is left to the prior.
 OUT_OF_REACH = "band_out_of_reach"
+#: Too few glints left after dropping those cut by a lash (``estimator.cut_glints``); with a
+#: suffix (``flux_cut_glints_not_converged``) where the refit without them failed.
+FLUX_CUT_GLINTS = "flux_cut_glints"
 #: Prefix of the reason of a sparse band whose prior-assisted estimate failed too (e.g.
 #: "prior_ambiguous", "prior_residual_too_large"): a prior was there, it did not suffice.
 PRIOR_PREFIX = "prior_"
@@ -136,6 +139,9 @@ class GazeSample:
     prior_assisted : bool
         The band borrowed the previous sample's estimate as a prior (:class:`BandPrior`): its
         few glints were identified and fitted with it.
+    flux_flagged : (f,) int
+        Lights whose glints were flagged as cut by a lash (``estimator.cut_glints``) and
+        dropped (a prior-assisted sample only records them); empty when not checked.
     """
 
     frame_index: int
@@ -149,6 +155,7 @@ class GazeSample:
     reason: str
     confidence: np.ndarray
     prior_assisted: bool = False
+    flux_flagged: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
 
     @property
     def ok(self) -> bool:
@@ -171,12 +178,13 @@ def failed_sample(frame_index: int, strobe_index: int, time_s: float, reason: st
 
 SAMPLE_COLUMNS = ("frame", "strobe", "time_s", "screen_x_m", "screen_y_m", "cornea_x_m",
                   "cornea_y_m", "cornea_z_m", "n_glints", "lights", "residual_px", "reason",
-                  "prior")
+                  "prior", "flux_flagged")
 
 
 def samples_csv(samples) -> str:
-    """CSV text of samples: a ``# scet-samples 2`` line, the header, one row per sample
-    (``prior``: 1 for a prior-assisted sample, else 0)."""
+    """CSV text of samples: a ``# scet-samples 3`` line, the header, one row per sample
+    (``prior``: 1 for a prior-assisted sample, else 0; ``flux_flagged``: the lights whose glints
+    were dropped as cut by a lash, ``;``-separated)."""
     buf = io.StringIO()
     buf.write(f"# {SAMPLES_FORMAT} {SAMPLES_VERSION}\n")
     w = csv.writer(buf, lineterminator="\n")
@@ -186,7 +194,8 @@ def samples_csv(samples) -> str:
                     *(repr(float(v)) for v in s.screen_xy_m),
                     *(repr(float(v)) for v in s.cornea_center_m), s.n_glints,
                     ";".join(str(int(i)) for i in s.light_index), repr(float(s.residual_px)),
-                    s.reason, int(s.prior_assisted)])
+                    s.reason, int(s.prior_assisted),
+                    ";".join(str(int(i)) for i in s.flux_flagged)])
     return buf.getvalue()
 
 
@@ -198,8 +207,8 @@ def write_samples_csv(path, samples) -> Path:
 def read_samples_csv(path) -> list[dict]:
     """Rows of a ``samples.csv`` (values as strings), after checking its format line.
 
-    Reads versions 1 and 2 (:data:`SAMPLES_READABLE`); rows of version 1, written before prior
-    assistance existed, get ``prior`` "0"."""
+    Reads versions 1-3 (:data:`SAMPLES_READABLE`); rows of version 1, written before prior
+    assistance existed, get ``prior`` "0", rows of versions 1-2 ``flux_flagged`` "" (none)."""
     path = Path(path)
     try:
         text = path.read_bytes().decode("utf-8")
@@ -219,7 +228,9 @@ def read_samples_csv(path) -> list[dict]:
         rows = list(csv.DictReader(io.StringIO(rest)))
     except csv.Error as exc:  # a field over csv's size limit, a NUL byte
         raise TrackerInputError(f"not a samples CSV ({exc})", path=path) from None
-    if version == 1:
-        for r in rows:
+    for r in rows:  # columns added by later versions: prior (2), flux_flagged (3)
+        if version < 2:
             r["prior"] = "0"
+        if version < 3:
+            r["flux_flagged"] = ""
     return rows

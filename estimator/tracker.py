@@ -39,6 +39,7 @@ from dataclasses import replace
 
 import numpy as np
 
+import estimator.cut_glints as cut_glints
 import estimator.matching.kernels as match_kernels
 
 from .banding import band_rows, strobe_instant
@@ -56,8 +57,9 @@ from .gaze import (
 from .glints import NO_BAND, DetectionParams, GlintDetector
 from .matching import BandFollower, FollowParams, GlintMatcher, MatchParams
 from .samples import (  # noqa: F401 (the reason codes: re-exported)
-    IDENTITY_FAILURES, IMPLAUSIBLE_JUMP, INTERNAL_ERROR, MISSING_FRAME, OUT_OF_REACH,
-    PRIOR_PREFIX, RESIDUAL_TOO_LARGE, SATURATED_FRAME, UNREADABLE_FRAME, WRONG_FRAME_SIZE,
+    FLUX_CUT_GLINTS, IDENTITY_FAILURES, IMPLAUSIBLE_JUMP, INTERNAL_ERROR, MISSING_FRAME,
+    OUT_OF_REACH, PRIOR_PREFIX, RESIDUAL_TOO_LARGE, SATURATED_FRAME, UNREADABLE_FRAME,
+    WRONG_FRAME_SIZE,
     BandPrior, GazeSample, TrackerInputError, failed_sample, inverse_2x2)
 from .setup import Setup
 
@@ -96,9 +98,6 @@ JUMP_SLACK_DEG = 2.0
 VELOCITY_AGE_S = 2.5e-3
 
 
-# --------------------------------------------------------------------------- the stream
-
-
 class Tracker:
     """Streaming gaze tracker on banded frames.
 
@@ -124,12 +123,15 @@ class Tracker:
         first band, after a sample older than :data:`JUMP_AGE_S`, and wherever its checks
         fail. ``False`` runs the search on every band (the reference it is compared with).
         Needs the calibration's eye centre and orbit radius and the ``"orbit"`` model.
+    flag_cut_glints : bool
+        Drop glints whose flux says a lash cuts them and refit (:mod:`estimator.cut_glints`;
+        off by default, README "Moving lids, blinks and lashes"); needs ``glint_flux``.
     """
 
     def __init__(self, setup: Setup, calibration: Calibration, method: str = "polynomial", *,
                  mapping: str = "eq1_25", detection: DetectionParams = DetectionParams(),
                  matching: MatchParams = MatchParams(), prior: BandPrior | None = BandPrior(),
-                 cheap: bool = True):
+                 cheap: bool = True, flag_cut_glints: bool = False):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         if not isinstance(calibration, Calibration):
@@ -141,6 +143,11 @@ class Tracker:
                              f"(has {sorted(calibration.mappings)})")
         self.setup, self.calibration, self.method, self.mapping = setup, calibration, method, mapping
         self.detection = detection
+        gf = calibration.glint_flux
+        if flag_cut_glints and (gf is None or gf.log_power.size != setup.lights.count):
+            raise ValueError(f"flag_cut_glints needs a calibration with glint_flux for the "
+                             f"{setup.lights.count} lights (recalibrate)")
+        self._flag_cut = bool(flag_cut_glints)
         # Detection reuses the sensor's noise model from frame to frame (measured again every
         # 30 frames, on a 5 % level drift, and after every reset of the stream).
         self._detector = GlintDetector(setup, detection)
@@ -208,8 +215,9 @@ class Tracker:
                 return [failed_sample(frame_index, j, t, reason) for (j, _), t in zip(bands, times)]
             det = self._detector(frame, frame_index)
             det = det.select(~det.has(NO_BAND))
-            glints, strobes = det.glints_px, det.strobe_index
-            return [self._band(frame_index, self._of_strobe(glints, strobes, b[0]), b, t)
+            glints, strobes, flux = det.glints_px, det.strobe_index, det.intensity
+            return [self._band(frame_index, self._of_strobe(glints, strobes, b[0]), b, t,
+                               flux[strobes == b[0]] if self._flag_cut else None)
                     for b, t in zip(bands, times)]
         except Exception as exc:  # the stream must survive any one frame; the reason is logged
             # A bug, not bad input: logged with its traceback, counted by the run's summary.
@@ -232,23 +240,32 @@ class Tracker:
         return None
 
     @staticmethod
-    def _of_strobe(glints_px, strobes, j: int) -> np.ndarray:
-        """Glints (k, 2) pulse j lit: GlintDetections.of_strobe's, ~30 us a band cheaper."""
+    def _of_strobe(glints_px, strobes, j: int) -> np.ndarray:  # of_strobe's, 30 us cheaper
         return glints_px[strobes == j]
 
-    def _band(self, f: int, g, band, time_s: float) -> GazeSample:
-        """Sample of a band of frame f: glints g (k, 2), band (pulse, (first row, last row))."""
+    def _band(self, f: int, g, band, time_s: float, flux=None) -> GazeSample:
+        """Sample of a band of frame f: glints g (k, 2), band (pulse, (first row, last row)),
+        the glints' flux (k,) where cut glints are flagged."""
         j, rows = band
         if g.shape[0] < MIN_GLINTS:
             sample = failed_sample(f, j, time_s, "match_too_few_glints", g)
         else:
             sample = self._dense(f, j, time_s, g, rows)
             if sample.ok or sample.reason not in IDENTITY_FAILURES:
-                return self._keep(sample)
+                return self._keep(self._check_flux(sample, g, flux))
         self._lose()
-        return self._keep(self._assisted(f, j, time_s, g, rows, sample))
+        return self._keep(self._check_flux(self._assisted(f, j, time_s, g, rows, sample), g, flux))
 
-    def _keep(self, sample: GazeSample) -> GazeSample:
+    def _check_flux(self, sample: GazeSample, g, flux) -> GazeSample:
+        """``sample`` without its glints cut by a lash (:mod:`estimator.cut_glints`)."""
+        if flux is None or not sample.ok:
+            return sample
+        lights, arrays = self._problems.center.lights_world_m, self.matcher.arrays
+        bad = cut_glints.flagged(self.calibration, self.setup.camera, lights, sample, g, flux, arrays)
+        return (cut_glints.refit_without(self, sample, bad, MIN_GLINTS, MAX_RESIDUAL_PX)
+                if bad.any() else sample)
+
+    def _keep(self, sample: GazeSample) -> GazeSample:  # a failed band loses the stream
         if not sample.ok:
             self._lose()
         return sample
@@ -305,14 +322,11 @@ class Tracker:
                           match.confidence[used].copy())
 
     def _cheap(self, f, j, time_s, g, rows) -> GazeSample | None:
-        """The cheap path's sample, or None where it declines (the search decides then).
-
-        Its prior is the previous band's sample, whose rotation the search would start from,
-        or, after bands without a sample, the last sample up to :data:`JUMP_AGE_S` old, after
-        which the search would run cold (its rivals then must lose without the prior's
-        term). Every outcome but an accepted band with an estimate below
-        :data:`MAX_RESIDUAL_PX` and no :data:`IMPLAUSIBLE_JUMP` goes to the search, which
-        gives those failures their reasons."""
+        """The cheap path's sample, or None where it declines (the search decides then). Its
+        prior: the previous band's sample, or after bands without one the last sample up to
+        :data:`JUMP_AGE_S` old (later the search runs cold). Every outcome but an accepted band
+        with an estimate below :data:`MAX_RESIDUAL_PX` and no :data:`IMPLAUSIBLE_JUMP` goes to
+        the search, which gives those failures their reasons."""
         fresh = self._prior_angles is not None
         if fresh:
             prior = self._prior_angles
@@ -390,8 +404,11 @@ class Tracker:
         lights = match.light_index[used]
         glints = self._glints(g[used], lights)
         # The compiled small fit models the sphere: a conic calibration takes the batched fits.
-        quick = (self._assisted_fit(g[used], lights, mean, cov)
-                 if self.follower and not self.calibration.conic else None)
+        quick = (assisted_estimate(self._problems.orbit, g[used], lights, mean, cov,
+                                   self.prior.noise_px, self.follower.arrays, self._gaze_point,
+                                   MAX_RESIDUAL_PX)
+                 if self.follower and not self.calibration.conic and match_kernels.ENABLED
+                 else None)
         post = None
         if quick is not None:
             xy, center, angles, rms, JtJ = quick
@@ -422,15 +439,6 @@ class Tracker:
         self._prior_angles = angles.copy()
         return GazeSample(f, j, time_s, xy.copy(), center.copy(), g[used], lights, rms, "ok",
                           match.confidence[used].copy(), prior_assisted=True)
-
-    def _assisted_fit(self, glints_px, lights, mean, cov):
-        """A prior-assisted band's estimate by the compiled small fit with the prior
-        (:func:`estimator.estimates.assisted_estimate`), or None (the batched fits decide)."""
-        if not match_kernels.ENABLED:
-            return None
-        return assisted_estimate(self._problems.orbit, glints_px, lights, mean, cov,
-                                 self.prior.noise_px, self.follower.arrays, self._gaze_point,
-                                 MAX_RESIDUAL_PX)
 
     def _gaze_point(self, center_m, angles_rad) -> np.ndarray:
         """The screen point (2,) of one estimate: the mapping of its cornea centre

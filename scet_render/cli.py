@@ -226,10 +226,11 @@ def cmd_track(args) -> int:
     try:
         if args.follow:
             summary = track_following(args.dir, setup, cal, args.out, method=args.method,
-                                      timeout_s=args.timeout, progress=update)
+                                      timeout_s=args.timeout, progress=update,
+                                      flag_cut_glints=args.flag_cut_glints)
         else:
             summary = track_folder(args.dir, setup, cal, args.out, method=args.method,
-                                   progress=update)
+                                   progress=update, flag_cut_glints=args.flag_cut_glints)
     finally:
         bar.close()
     print(f"{len(summary.samples)} gaze samples from {summary.frames} frames "
@@ -396,6 +397,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "dataset's last frame or --timeout seconds without a new frame")
     p.add_argument("--timeout", type=finite(0.001, 86400.0), default=5.0,
                    help="with --follow: seconds without a new frame before stopping (default 5)")
+    p.add_argument("--flag-cut-glints", action="store_true",
+                   help="drop glints whose flux is far below the calibration's expected flux "
+                        "and off where the fitted pose puts them (cut by a lash), and refit "
+                        "without them (needs a calibration from this version's scet calibrate)")
     p.set_defaults(func=cmd_track)
 
     add_dataset_parsers(sub)

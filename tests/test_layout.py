@@ -31,7 +31,7 @@ LAYERS = {
         {"gaze"},
         {"glints", "capture"},
         {"matching"},
-        {"tracker", "samples", "estimates"},
+        {"tracker", "samples", "estimates", "cut_glints"},
         {"inputs", "folders"},
         {"live"},
     ],

@@ -28,6 +28,7 @@ from .lighting import (
     corrected_lights,
     pose_correction,
 )
+from .flux import FRESNEL_MODELS, GlintFlux, fit_glint_flux, model_flux
 from .mapping import MAPPING_TERMS, RANK_RTOL, GazeMapping, distance_reading, fit_gaze_mapping
 from .orbit import ORBIT_RADIUS_BOUNDS_M, OrbitFit, orbit_law_of_sines, orbit_sphere_fit
 from .result import Calibration
@@ -40,5 +41,6 @@ __all__ = [
     "calibrate_lighting_joint", "calibrate_joint", "MAPPING_TERMS", "RANK_RTOL", "GazeMapping",
     "fit_gaze_mapping", "distance_reading", "ORBIT_RADIUS_BOUNDS_M", "OrbitFit",
     "orbit_law_of_sines", "orbit_sphere_fit", "Calibration", "Q_BOUNDS", "calibrate_joint_conic",
-    "IDENTIFY_ROUNDS", "identify_on_conic"
+    "IDENTIFY_ROUNDS", "identify_on_conic", "FRESNEL_MODELS", "GlintFlux", "fit_glint_flux",
+    "model_flux",
 ]

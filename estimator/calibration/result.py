@@ -35,6 +35,7 @@ from ..cornea import ASPHERICITY_RANGE, CORNEA_MODELS, check_conic
 from ..errors import InputError
 from ..formats import CALIBRATION_FORMAT, CALIBRATION_VERSION, check_format
 from ..geometry import RigidPose
+from .flux import GlintFlux
 from .lighting import CORNEA_RADIUS_INIT_M, LightingFit, corrected_lights
 from .mapping import GazeMapping
 from .orbit import OrbitFit
@@ -78,6 +79,9 @@ class Calibration:
         the file only when ``"conic"`` (a spherical calibration's file is as before).
     cornea_asphericity : float
         Q in (-1, 1]; 0 for the sphere.
+    glint_flux : GlintFlux or None
+        Each light's power for the glints' expected flux (:mod:`estimator.calibration.flux`),
+        the tracker's check for glints cut by a lash; None (old files) turns it off.
     """
 
     lighting_correction: RigidPose = field(default_factory=RigidPose)
@@ -89,6 +93,7 @@ class Calibration:
     quality: dict = field(default_factory=dict)
     cornea_model: str = "sphere"
     cornea_asphericity: float = 0.0
+    glint_flux: GlintFlux | None = None
 
     def __post_init__(self):
         model, q = check_conic(self.cornea_model, self.cornea_asphericity)
@@ -106,6 +111,9 @@ class Calibration:
         if not isinstance(self.quality, dict):
             raise ValueError(f"Calibration.quality must be a dict, got {type(self.quality).__name__}")
         object.__setattr__(self, "quality", dict(self.quality))
+        if self.glint_flux is not None and not isinstance(self.glint_flux, GlintFlux):
+            raise ValueError(f"Calibration.glint_flux must be a GlintFlux or None, "
+                             f"got {type(self.glint_flux).__name__}")
         for name, m in self.mappings.items():
             if not isinstance(m, GazeMapping):
                 raise ValueError(f"Calibration.mappings[{name!r}] must be a GazeMapping, got {type(m).__name__}")
@@ -166,6 +174,7 @@ class Calibration:
             "mappings": {k: v.to_dict() for k, v in self.mappings.items()},
             "methods": dict(self.methods),
             "quality": dict(self.quality),
+            **({} if self.glint_flux is None else {"glint_flux": self.glint_flux.to_dict()}),
         }
 
     @classmethod
@@ -217,8 +226,10 @@ class Calibration:
                 skipped.string(name)
         if model == "conic" and not np.isfinite(center).all():
             raise doc.error("eye_center_m", "a 'conic' cornea_model needs the eye centre")
+        flux = doc.obj("glint_flux", required=False)
+        flux = GlintFlux.from_dict(flux) if flux is not None else None
         return cls(pose, radius, center, r_co, mappings, methods.data if methods else {},
-                   quality.data if quality else {}, model, q)
+                   quality.data if quality else {}, model, q, flux)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=1)

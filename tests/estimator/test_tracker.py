@@ -317,13 +317,14 @@ def test_samples_csv_marks_prior_assisted_samples_and_reads_version_1(tmp_path, 
     out = Tracker(setup, calibration).process(img, 0)
     path = tmp_path / "s.csv"
     path.write_text(samples_csv(out))
-    assert path.read_text().startswith("# scet-samples 2\n")
+    assert path.read_text().startswith("# scet-samples 3\n")
     rows = read_samples_csv(path)
     assert [r["prior"] for r in rows] == [str(int(s.prior_assisted)) for s in out]
     assert rows[k]["prior"] == "1"
     old = tmp_path / "v1.csv"
     old.write_text("# scet-samples 1\nframe,strobe,reason\n0,3,ok\n")
-    assert read_samples_csv(old) == [{"frame": "0", "strobe": "3", "reason": "ok", "prior": "0"}]
+    assert read_samples_csv(old) == [{"frame": "0", "strobe": "3", "reason": "ok", "prior": "0",
+                                      "flux_flagged": ""}]
     (tmp_path / "v9.csv").write_text("# scet-samples 9\nframe\n")
     with pytest.raises(TrackerInputError, match="v9.csv"):
         read_samples_csv(tmp_path / "v9.csv")

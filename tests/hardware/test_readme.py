@@ -87,7 +87,7 @@ def test_the_readme_runs(firmware, datasets, tmp_path):
                                       capture_output=True, text=True, timeout=300)
                 assert proc.returncode == 0, f"{line}\n{proc.stdout}\n{proc.stderr}"
     samples = (REPO / "out" / "session" / "samples.csv").read_text().splitlines()
-    assert samples[0] == "# scet-samples 2"
+    assert samples[0] == "# scet-samples 3"
     ok = [r for r in samples[2:] if ",ok," in r]
     assert ok, "no gaze sample estimated from the replayed capture"
     cal = json.loads((REPO / "out" / "session" / "cal.json").read_text())

@@ -80,3 +80,19 @@ def test_track_and_calibrate_name_missing_inputs(capsys, tmp_path):
     assert main(["calibrate", str(tmp_path / "nowhere"), "--out", str(tmp_path / "cal.json")]) == 2
     assert "nowhere" in capsys.readouterr().err
     assert not (tmp_path / "s.csv").exists() and not (tmp_path / "cal.json").exists()
+
+
+def test_track_refuses_to_flag_cut_glints_without_glint_flux(capsys, tmp_path):
+    from estimator.folders import save_calibration
+    from estimator.scene import load_scene
+    from tests.estimator.simulated import ground_truth_calibration
+    from tests.estimator.test_tracker import draw_frame, write_folder
+
+    setup = load_scene("paper_sim")
+    rng = np.random.default_rng(1)
+    folder = write_folder(tmp_path / "run", setup, [draw_frame(setup, 0, 0.0, 0.0, rng)])
+    save_calibration(ground_truth_calibration(setup), tmp_path / "old.json")  # no glint_flux
+    assert main(["track", str(folder), "--calibration", str(tmp_path / "old.json"),
+                 "--out", str(tmp_path / "s.csv"), "--flag-cut-glints"]) == 2
+    assert "glint_flux" in capsys.readouterr().err
+    assert not (tmp_path / "s.csv").exists()
