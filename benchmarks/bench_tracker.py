@@ -151,11 +151,9 @@ def breakdown(setup, cal, method, frames, compiled=True) -> dict:
     m = tr.matcher
     m._assign = _Timed(m._assign, totals, "assign")
     m._final_assign = _Timed(m._final_assign, totals, "assign")
-    saved = (follow_module.fit_small, tracker_module.fit_small,
-             tracker_module.screen_intersection, m.match)
-    follow_module.fit_small = tracker_module.fit_small = estimates_module.fit_small = _Timed(
-        saved[0], totals, "fit")
-    tracker_module.screen_intersection = _Timed(saved[2], totals, "map")
+    saved = (follow_module.fit_small, tracker_module.screen_intersection)
+    follow_module.fit_small = estimates_module.fit_small = _Timed(saved[0], totals, "fit")
+    tracker_module.screen_intersection = _Timed(saved[1], totals, "map")
     tr._of_strobe = _Timed(tr._of_strobe, totals, "group")
     m.match = _Timed(m.match, totals, "search")
     m.match_near = _Timed(m.match_near, totals, "prior")
@@ -166,8 +164,7 @@ def breakdown(setup, cal, method, frames, compiled=True) -> dict:
         samples, _ = run(tr, frames)
         wall = time.perf_counter() - t
     finally:
-        (follow_module.fit_small, tracker_module.fit_small,
-         tracker_module.screen_intersection) = saved[:3]
+        follow_module.fit_small, tracker_module.screen_intersection = saved
         estimates_module.fit_small = saved[0]
     totals["other"] = wall - sum(totals[s] for s in STAGES if s != "other")
     return {"samples": len(samples), "wall": wall, **totals}

@@ -44,7 +44,7 @@ import estimator.matching.kernels as match_kernels
 
 from .banding import band_rows, strobe_instant
 from .calibration import Calibration
-from .cornea import fit_covariance, fit_small
+from .cornea import fit_covariance
 from .estimates import assisted_estimate, searched_estimate
 from .eye import gaze_direction
 from .gaze import (
@@ -364,17 +364,15 @@ class Tracker:
                 return None
             xy, center = est.screen_xy_m[0], est.cornea_center_m[0]
             rms, resume = float(est.rms_px[0]), est.resume_from
-        elif self.method == "polynomial":
-            start = match.cornea_center_m if self._start is None else self._start
-            fit = fit_small(self._problems.center, g[used],
-                            self._problems.center.lights_world_m[lights], start, model="center",
-                            arrays=self.follower.arrays)
-            if not fit.ok:
+        elif self.method == "polynomial":  # the free centre by the compiled small fit
+            quick = searched_estimate(self._problems, "polynomial", g[used], lights, self._start,
+                                      match.cornea_center_m, self.follower.arrays,
+                                      self._gaze_point, MAX_RESIDUAL_PX)
+            if quick is None:
                 return None
-            center, rms, resume = fit.x, fit.rms_px, fit.x
+            xy, center, rms, resume = quick
         else:
             center, rms, resume = match.cornea_center_m, orbit.rms_px, orbit.x
-        if not self.calibration.conic:
             xy = self._gaze_point(center, orbit.x)
         if not (np.isfinite(xy).all() and rms <= MAX_RESIDUAL_PX) or \
                 self._implausible(time_s, match.angles_rad):
