@@ -363,11 +363,13 @@ class TrackSummary:
 
 
 def tracking_calibration(folder, calibration, out_csv, *, method: str = "polynomial",
-                         mapping: str | None = None) -> tuple[Calibration, str]:
+                         mapping: str | None = None, flag_cut_glints: bool = False,
+                         n_lights: int | None = None) -> tuple[Calibration, str]:
     """The checks of a folder run (:func:`track_folder`, :func:`estimator.live.track_following`)
     before anything is read: ``out_csv`` must not be one of the inputs, and the calibration (or
-    its file, loaded) must hold what ``method`` needs; ``mapping`` defaults to the
-    calibration's Eq. (1) mapping. Returns the calibration and the mapping name."""
+    its file, loaded) must hold what ``method`` needs, and with ``flag_cut_glints`` the glint
+    flux of the rig's ``n_lights`` lights; ``mapping`` defaults to the calibration's Eq. (1)
+    mapping. Returns the calibration and the mapping name."""
     inputs = input_files(folder)
     source = "the calibration"
     if not isinstance(calibration, Calibration):
@@ -389,6 +391,13 @@ def tracking_calibration(folder, calibration, out_csv, *, method: str = "polynom
     if method == "geometric" and not calibration.has_orbit:
         raise TrackerInputError(f"{source}: no eye centre and orbit radius, which --method "
                                 "geometric needs")
+    flux = calibration.glint_flux
+    if flag_cut_glints and (flux is None or (n_lights is not None
+                                             and flux.log_power.size != n_lights)):
+        have = "no glint_flux" if flux is None else \
+            f"glint_flux of {flux.log_power.size} lights, not the rig's {n_lights}"
+        raise TrackerInputError(f"{source}: {have}, which --flag-cut-glints needs (calibrate "
+                                "again with this version, on this rig)")
     return calibration, mapping or ""
 
 
@@ -429,7 +438,8 @@ def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "p
         ``progress(done, total)`` after every frame.
     """
     calibration, mapping = tracking_calibration(folder, calibration, out_csv, method=method,
-                                                mapping=mapping)
+                                                mapping=mapping, flag_cut_glints=flag_cut_glints,
+                                                n_lights=setup.lights.count)
     timing = read_timing(folder, setup)
     # The frames were taken with the sidecar's exposure and strobe where it gives them.
     setup = timing.apply(setup)

@@ -129,7 +129,8 @@ def track_following(folder, setup: Setup, calibration, out_csv, *, method: str =
     frames so far, or a dataset's count). Other arguments as
     :func:`estimator.folders.track_folder`; ``wait`` goes to :func:`follow_frames`."""
     calibration, mapping = tracking_calibration(folder, calibration, out_csv, method=method,
-                                                mapping=mapping)
+                                                mapping=mapping, flag_cut_glints=flag_cut_glints,
+                                                n_lights=setup.lights.count)
     tracker = Tracker(setup, calibration, method, mapping=mapping,
                       flag_cut_glints=flag_cut_glints)
     expected = _expected_frames(Path(folder))

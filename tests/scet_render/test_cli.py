@@ -94,5 +94,6 @@ def test_track_refuses_to_flag_cut_glints_without_glint_flux(capsys, tmp_path):
     save_calibration(ground_truth_calibration(setup), tmp_path / "old.json")  # no glint_flux
     assert main(["track", str(folder), "--calibration", str(tmp_path / "old.json"),
                  "--out", str(tmp_path / "s.csv"), "--flag-cut-glints"]) == 2
-    assert "glint_flux" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "old.json" in err and "no glint_flux" in err  # the file and the key
     assert not (tmp_path / "s.csv").exists()
