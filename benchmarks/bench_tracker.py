@@ -13,9 +13,10 @@ numpy steps (:mod:`estimator.matching.kernels` off, and with it the search's com
 and predictions: as on an install without Numba) and
 ``cheap=True`` alternated over ``--rounds`` rounds on the same frames (the machine's speed
 drifts: ratios are per round):
-samples/s (every lit band is a sample, NaN or not), per-frame latency p50/p99 (frame in, its
-samples out), whether both give the same samples (reasons, identities, estimates to 1e-6 m),
-where each band's microseconds go on the cheap path, and the estimated Raspberry Pi 3B+ figure.
+samples/s (every lit band is a sample, NaN or not; and the estimates/s of the estimated
+ones), per-frame latency p50/p99 (frame in, its samples out), whether both give the same
+samples (reasons, identities, estimates to 1e-6 m), where each band's microseconds go on the
+cheap path, and the estimated Raspberry Pi 3B+ figure.
 With ``--conic Q`` it measures instead what the estimator's conic cornea option costs: the
 same synthetic frames of an eye whose cornea has conic constant Q, tracked with the cheap path
 by the spherical tracker and by the conic-aware one (``cornea_model = "conic"``, Q known; both
@@ -331,7 +332,8 @@ def main(argv=None):
         print(f"  cheap / search: {np.median(ratio):.1f}x (rounds {ratio.min():.1f}-{ratio.max():.1f}); "
               f"bands: {counts['cheap']} cheap, {counts['search']} searched, {counts['unfillable']} "
               f"left to the prior unsearched; {ok}/{len(out[True])} "
-              f"samples estimated; same samples: {'yes' if agree else 'NO'}")
+              f"samples estimated ({np.median(rates[True]) * ok / len(out[True]):.0f} "
+              f"estimates/s); same samples: {'yes' if agree else 'NO'}")
         print(f"  matching kernels / numpy matcher: {np.median(ratio_numpy):.2f}x (rounds "
               f"{ratio_numpy.min():.2f}-{ratio_numpy.max():.2f}); same samples: "
               f"{'yes' if agree_numpy else 'NO'}"

@@ -290,3 +290,20 @@ def test_a_band_out_of_reach_is_left_to_the_prior(setup, calibration):  # noqa: 
             assert np.abs(a.cornea_center_m - b.cornea_center_m).max() < 1e-7  # as above
     assert relabelled >= 3
     assert sum(s.ok for s in out[True]) == sum(s.ok for s in out[False]) > 0
+
+
+def test_the_shift_table_is_the_arcs_shift(setup, calibration):  # noqa: F811
+    """_shift's table (steps of one and two lights) gives what the arcs give, on every light
+    and on assignments with unmatched detections: a light moved off its arc's end is -1."""
+    matcher = GlintMatcher(setup, calibration=calibration)
+    n = matcher.lights_world_m.shape[0]
+    rng = np.random.default_rng(3)
+    cases = [np.arange(n)] + [np.where(rng.random(6) < 0.3, -1, rng.integers(0, n, 6))
+                              for _ in range(50)]
+    ends = 0
+    for assign in cases:
+        for step in (-2, -1, 1, 2):
+            got = matcher._shift(assign, step)
+            assert np.array_equal(got, matcher._shift_any(assign, step))
+            ends += int(((assign >= 0) & (got < 0)).sum())
+    assert ends > 0

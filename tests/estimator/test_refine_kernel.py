@@ -160,18 +160,3 @@ def test_the_tracker_gives_the_same_samples(setup, calibration, method):  # noqa
 
     assert_same_samples(*both(track), center_m=1e-9, screen_m=1e-9)
 
-
-def test_the_shift_table_is_the_arcs_shift(matcher):
-    """_shift's table (steps of one and two lights) gives what the arcs give, on every light
-    and on assignments with unmatched detections: a light moved off its arc's end is -1."""
-    n = matcher.lights_world_m.shape[0]
-    rng = np.random.default_rng(3)
-    cases = [np.arange(n)] + [np.where(rng.random(6) < 0.3, -1, rng.integers(0, n, 6))
-                              for _ in range(50)]
-    ends = 0
-    for assign in cases:
-        for step in (-2, -1, 1, 2):
-            got = matcher._shift(assign, step)
-            assert np.array_equal(got, matcher._shift_any(assign, step))
-            ends += int(((assign >= 0) & (got < 0)).sum())
-    assert ends > 0
