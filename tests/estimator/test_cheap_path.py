@@ -307,3 +307,36 @@ def test_the_shift_table_is_the_arcs_shift(setup, calibration):  # noqa: F811
             assert np.array_equal(got, matcher._shift_any(assign, step))
             ends += int(((assign >= 0) & (got < 0)).sum())
     assert ends > 0
+
+
+@pytest.mark.parametrize("kind", ["eq1", "quadratic", "quadratic_da"])
+def test_a_mappings_one_feature_form_is_its_batch_form(kind):
+    """GazeMapping.predict_one (the tracker's per-sample form, plain floats) gives predict's
+    screen point to 1e-12 relative: the same monomials, summed term by term."""
+    from estimator.calibration import fit_gaze_mapping
+
+    rng = np.random.default_rng(14)
+    d = 4 if kind == "quadratic_da" else 3
+    scale = np.array([2e-3, 2e-3, 1e-3, 0.05])[:d]  # cornea centres (m), a distance reading
+    features = rng.normal(0.0, 1.0, (60, d)) * scale + np.array([0, 0, -4e-3, 0.6])[:d]
+    screen = rng.uniform(-0.2, 0.2, (60, 2))
+    mapping = fit_gaze_mapping(features, screen, kind)
+    batch = mapping.predict(features)
+    for f, want in zip(features, batch):
+        assert np.allclose(mapping.predict_one(f), want, rtol=1e-12, atol=1e-15)
+
+
+def test_the_closed_form_2x2_eigenvalues():
+    """matcher._eig_2x2 gives eigvalsh's smaller and larger eigenvalues (1e-12 of the larger)
+    of random symmetric 2 x 2 matrices, definite or not, one at a time and as arrays."""
+    from estimator.matching.matcher import _eig_2x2
+
+    rng = np.random.default_rng(15)
+    A = rng.normal(size=(500, 2, 2))
+    A = 0.5 * (A + np.swapaxes(A, 1, 2))
+    lo, hi = _eig_2x2(A[:, 0, 0], A[:, 0, 1], A[:, 1, 1])
+    w = np.linalg.eigvalsh(A)
+    big = np.abs(w).max(axis=1)
+    assert np.all(np.abs(lo - w[:, 0]) <= 1e-12 * big)
+    assert np.all(np.abs(hi - w[:, 1]) <= 1e-12 * big)
+    assert _eig_2x2(2.0, 0.0, 1.0) == (1.0, 2.0)
