@@ -46,7 +46,7 @@ from estimator.gaze import calibrated_problems, geometric_gaze, polynomial_gaze,
 from estimator.metrics import angular_error_deg
 from estimator.scene import load_scene
 from estimator.setup import Setup
-from estimator.tracker import MAX_RESIDUAL_PX, RESIDUAL_TOO_LARGE
+from estimator.tracker import MAX_RESIDUAL_PX, RESIDUAL_TOO_LARGE, TrackerInputError
 
 from ..dataset import render_calibration
 from .config import (
@@ -257,7 +257,15 @@ def validate_setup(setup: Setup, cfg: ValidationConfig, out_dir, *, seed: int = 
     calibration = calibrate_from_folder(cal_dir, setup, cornea_model=cornea_model)
     save_calibration(calibration, out / f"calibration{tag}.json")
     timings["calibrate"] = time.perf_counter() - t
-    mapping = sorted(k for k in calibration.mappings if k.startswith("eq1"))[-1]
+    eq1 = sorted(k for k in calibration.mappings if k.startswith("eq1"))
+    if not eq1:  # too few calibration frames identified: the study cannot run polynomial gaze
+        skipped = calibration.quality.get("mappings_skipped") or {}
+        raise TrackerInputError(
+            f"{out / f'calibration{tag}.json'}: no Eq. (1) gaze mapping (has "
+            f"{sorted(calibration.mappings)}; skipped: {skipped or 'none'}): the calibration "
+            f"renders in {cal_dir} gave too few usable frames; render them with more spp or a "
+            "larger calibration grid")
+    mapping = eq1[-1]
 
     rows, errors, reasons, noise_by_ppf, tracked, assisted = [], {}, {}, {}, {}, {}
     labels_by_ppf = {}

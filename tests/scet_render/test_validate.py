@@ -190,3 +190,16 @@ def test_quick_mode_end_to_end(tmp_path):
             s = _median(res.errors_deg[("simulated", ppf, method)])
             assert abs(r - s) < RENDER_VS_SIM_DEG, (ppf, method, r, s)
             assert res.row("rendered", method, ppf).valid > 0.3
+
+
+def test_a_calibration_without_an_eq1_mapping_is_a_clear_error(tmp_path):
+    """A 2 x 2 calibration pattern (4 frames) cannot fit Eq. (1)'s 20 coefficients: the run
+    stops with an input error naming the calibration file, not an IndexError."""
+    from estimator.errors import InputError
+
+    cfg = ValidationConfig(scale=2, spp=1, cornea="conductor", frames=1, calib_grid=(2, 2),
+                           pulses_per_frame=(16,))
+    with pytest.raises(InputError, match=r"calibration\.json: no Eq\. \(1\) gaze mapping"):
+        run_validation(quick=True, out_dir=tmp_path / "w", config=cfg,
+                       report_dir=tmp_path / "r")
+    assert not (tmp_path / "r" / "validation.md").exists()
