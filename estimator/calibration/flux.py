@@ -16,9 +16,10 @@ pinhole camera that reads radiance (the renderer's) sums a point source to E / Î
 :class:`GlintFlux` holds log I_i, fitted as the median over calibration frames.
 
 F is the unpolarised Fresnel reflectance of the tear film (n = 1.376) for a real cornea and the
-renderer's default ``dielectric`` cornea; the renderer's ``conductor`` cornea is a mirror scaled
-by F(0) only (README, "The cornea"), for which ``fresnel="constant"``. The calibration fits both
-and keeps the one whose log ratios spread less (it is recorded in the file).
+renderer's ``dielectric`` and ``conductor`` corneas (README, "The cornea"); ``fresnel="constant"``
+models a mirror of one reflectance (the renderer's conductor before issue 14 was scaled by F(0)
+only). The calibration fits both and keeps the one whose log ratios spread less (it is
+recorded in the file).
 """
 
 from __future__ import annotations

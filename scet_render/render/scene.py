@@ -127,13 +127,12 @@ def _diffuse(albedo: float, twosided: bool = False) -> dict:
 def _cornea_bsdf(setup: Setup, options: SceneOptions) -> dict:
     n = setup.eye.refractive_index
     if options.cornea == "conductor":
-        # A mirror scaled by the normal-incidence Fresnel reflectance: exact glint geometry
-        # from every sample. Its glints are dimmer than the dielectric's F(theta) (32 % at
-        # paper_sim's glints); a conductor with eta = n, k = 0 has the dielectric's Fresnel, but
-        # the sensor's default exposure (sensor.DEFAULT_ELECTRONS_PER_RADIANCE) is tuned on F0
-        # and would clip glints beyond ~41 deg incidence: both change together (issue 14).
-        f0 = ((n - 1.0) / (n + 1.0)) ** 2
-        return {"type": "conductor", "material": "none", "specular_reflectance": _rgb([f0] * 3)}
+        # A mirror with the dielectric's Fresnel reflectance F(theta) (a conductor of eta = n,
+        # k = 0: tests/scet_render/test_cornea_bsdf.py), no refraction: exact glint geometry
+        # from every sample. At the sensor's default exposure, tuned on F0
+        # (sensor.DEFAULT_ELECTRONS_PER_RADIANCE), glints beyond ~41 deg incidence clip, as
+        # the default dielectric's do.
+        return {"type": "conductor", "eta": n, "k": 0.0}
     transmit = [0.0, 1.0, 1.0] if options.channels == "split" else [1.0, 1.0, 1.0]
     if options.cornea == "plain_dielectric":
         return {"type": "dielectric", "int_ior": n, "ext_ior": 1.0,

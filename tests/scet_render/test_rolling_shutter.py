@@ -286,10 +286,16 @@ def test_rows_collect_their_pulse_fraction(still_frames):
     """Row by row, banded / global-shutter strobe light = Σ_j w_j(y) (Eqs. (2)-(3))."""
     banded, global_frame = still_frames
     expect = banded.row_weights.sum(axis=1)
-    row_b, row_g = banded.radiance.mean(axis=1), global_frame.mean(axis=1)
+    # Row means without the glints: a glint is sampled by a few of a pixel's 16 rays (the
+    # emitter's reflection covers part of it), so a row through one carries its Monte Carlo
+    # noise, up to F / F0 = 2.7 times brighter than the rest of the row's light.
+    bright = np.maximum(banded.radiance, global_frame) > 0.2 * global_frame.max()
+    row_b = np.where(bright, 0.0, banded.radiance).sum(axis=1)
+    row_g = np.where(bright, 0.0, global_frame).sum(axis=1)
     rows = row_g > 0.05 * row_g.max()
     ratio = row_b[rows] / row_g[rows]
-    # Per-row means of 640 px at 16 spp: a few % of Monte Carlo noise per row.
+    # Per-row sums of ~640 px at 16 spp: a few % of Monte Carlo noise per row.
+    assert rows.sum() > 100
     assert np.median(np.abs(ratio - expect[rows])) < 0.03
     assert np.abs(ratio - expect[rows]).max() < 0.25
 

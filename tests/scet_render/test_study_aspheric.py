@@ -96,7 +96,7 @@ def test_tiny_rendered_study(tmp_path):
     from scet_render.study.aspheric import run_aspheric_study
     from scet_render.validate import ValidationConfig
 
-    cfg = ValidationConfig(scale=2, spp=2, cornea="conductor", frames=3, calib_grid=(3, 3),
+    cfg = ValidationConfig(scale=2, spp=2, cornea="conductor", frames=3, calib_grid=(4, 4),
                            pulses_per_frame=(16,))
     conditions, features, path = run_aspheric_study(
         quick=True, out_dir=tmp_path / "w", report_dir=tmp_path / "r", asphericities=(0.0, -0.25),
@@ -116,10 +116,11 @@ def test_tiny_rendered_study(tmp_path):
     by_q = {c.q: c for c in conditions if c.cornea_model == "sphere"}
     geo0 = by_q[0.0].stats[("rendered", "geometric", "all")]
     geo1 = by_q[-0.25].stats[("rendered", "geometric", "all")]
-    # Means (index 2): 0.11 deg on the sphere, 1.13 deg at Q = -0.25 (seed 0); the model error
-    # dwarfs the 0.1 deg of detection noise.
+    # Means (index 2): 0.10 deg on the sphere, 3.15 deg at Q = -0.25 (seed 0, a 4 x 4
+    # calibration: 3 x 3 lost its Eq. (1) mapping to frames the 2-spp glints leave
+    # ambiguous); the model error dwarfs the 0.1 deg of detection noise.
     assert np.isfinite(geo0[2]) and np.isfinite(geo1[2]) and geo1[2] > geo0[2] + 0.5
-    # The rendered sphere fit's residual grows with the model error (0.23 -> 0.90 px median).
+    # The rendered sphere fit's residual grows with the model error (0.24 -> 0.53 px median).
     fit = {q: np.median(c.fit_rms_px["geometric"]) for q, c in by_q.items()}
     assert fit[-0.25] > fit[0.0]
     assert set(features) == {0.0, -0.25, (0.0, "conic"), (-0.25, "conic")}
