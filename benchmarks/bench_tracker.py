@@ -15,8 +15,8 @@ and predictions: as on an install without Numba) and
 drifts: ratios are per round):
 samples/s (every lit band is a sample, NaN or not; and the estimates/s of the estimated
 ones), per-frame latency p50/p99 (frame in, its samples out), whether both give the same
-samples (reasons, identities, estimates to 1e-6 m), where each band's microseconds go on the
-cheap path, and the estimated Raspberry Pi 3B+ figure.
+samples (reasons; identities and estimates to 1e-6 m where estimated), where each band's
+microseconds go on the cheap path, and the estimated Raspberry Pi 3B+ figure.
 With ``--conic Q`` it measures instead what the estimator's conic cornea option costs: the
 same synthetic frames of an eye whose cornea has conic constant Q, tracked with the cheap path
 by the spherical tracker and by the conic-aware one (``cornea_model = "conic"``, Q known; both
@@ -99,13 +99,17 @@ def run(tracker, frames):
 
 
 def same(a, b) -> bool:
-    """Whether samples ``b`` (the cheap path) are ``a``: reasons, identities and estimates to
-    1e-6 m. A NaN band of ``b`` the cheap path left unsearched (``band_out_of_reach``) may
-    name another reason in ``a``, a NaN there too (:meth:`Tracker._unfillable`)."""
+    """Whether samples ``b`` (the cheap path) are ``a``: reasons, and the identities and
+    estimates (to 1e-6 m) of the estimated ones. A NaN band of ``b`` the cheap path left
+    unsearched (``band_out_of_reach``) may name another reason in ``a``, a NaN there too
+    (:meth:`Tracker._unfillable`); a NaN sample's glints and lights are diagnostics of the
+    route that failed (a sparse band's prior-assisted retry keeps those of the failure before
+    it, a search's or ``band_out_of_reach``'s), not answers."""
     return len(a) == len(b) and all(
         (y.reason == OUT_OF_REACH and not x.ok) or (
-            x.reason == y.reason and np.array_equal(x.light_index, y.light_index)
-            and (not x.ok or np.abs(x.cornea_center_m - y.cornea_center_m).max() < 1e-6))
+            x.reason == y.reason and (not x.ok or (
+                np.array_equal(x.light_index, y.light_index)
+                and np.abs(x.cornea_center_m - y.cornea_center_m).max() < 1e-6)))
         for x, y in zip(a, b))
 
 
