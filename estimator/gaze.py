@@ -314,7 +314,9 @@ def fit_cornea_centers(setup, calibration: Calibration, glints_px, mask=None, *,
                        chain: bool = False, solver: str = "lm", max_iter: int = 50,
                        problems: CalibratedProblems | None = None) -> CorneaFit:
     """Cornea centres (the ``"center"`` model: known r_c and calibrated lighting) of a batch of
-    samples: the features of polynomial gaze, for calibrating a mapping and for using it.
+    samples: the features of polynomial gaze, for calibrating a mapping and for using it. With
+    a conic calibration (``cornea_model = "conic"``) the feature is the conic orbit fit's
+    centre (the calibrated c_e and r_co constrain it; comment below), unless ``chain``.
 
     ``start`` is the initial centre, by default the nominal eye's at primary position (the
     paper's, Sec. 2.2.1); ``chain`` and ``solver`` as in :func:`geometric_gaze`.
@@ -323,14 +325,14 @@ def fit_cornea_centers(setup, calibration: Calibration, glints_px, mask=None, *,
     x0 = setup.eye.cornea_center(0.0, 0.0) if start is None else start
     conic = conic_of(calibration)
     if conic is not None and problems.orbit is not None and not chain:
-        # The free centre's conic iterations start from the conic orbit fit's centre: from the
-        # sphere's answer (mm off in depth at Q = -0.45) they fell into another minimum in 2
-        # of the 5x5 calibration frames (noise-free paper_sim), and the 8-glint fits of noisy
-        # bands had a heavier tail (below).
+        # A conic's feature is the centre on the calibrated orbit (the conic orbit fit), not
+        # the free centre: a band's glints determine the free centre's 3 unknowns less well on
+        # a conic than on a sphere (lateral scatter 1.3-1.7x at 0.3 px of noise), and Eq. (1)
+        # amplifies it (quick renders, Q = -0.25: 0.93 deg against 0.64 at Q = 0 with the
+        # free centre). The conic calibration has c_e and r_co in any case.
         lim = np.full(2, ANGLE_BOUND_RAD)
-        orbit = _fit(problems.orbit, glints_px, mask, (0.0, 0.0), "orbit", solver, False, -lim,
-                     lim, max_iter, conic=conic)
-        conic = conic + (orbit.center_m,)
+        return _fit(problems.orbit, glints_px, mask, (0.0, 0.0), "orbit", solver, False, -lim,
+                    lim, max_iter, conic=conic)
     return _fit(problems.center, glints_px, mask, x0, "center", solver, chain, None, None,
                 max_iter, conic=conic)
 
