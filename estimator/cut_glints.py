@@ -8,8 +8,9 @@ calibrated power times the convex mirror's reflected irradiance) tells such a gl
 clear one; :func:`flagged` finds them and :func:`refit_without` fits the band again without.
 Both run compiled where Numba is (:data:`estimator.matching.kernels.ENABLED`): the check as
 one loop over the band's glints (:func:`log_ratios`, the numpy model of
-:func:`estimator.calibration.model_flux` otherwise), the refit by the compiled small fit
-(:func:`estimator.estimates.searched_estimate`) before the batched fits.
+:func:`estimator.calibration.model_flux` otherwise), the refit by the tracker's estimate of
+identified glints (the compiled small fit, :func:`estimator.estimates.searched_estimate`,
+before the batched fits).
 """
 
 from __future__ import annotations
@@ -21,9 +22,7 @@ import numpy as np
 
 import estimator.matching.kernels as match_kernels
 
-from .estimates import searched_estimate
 from .eye import CORNEA_REFRACTIVE_INDEX
-from .gaze import geometric_gaze, polynomial_gaze
 from .geometry import camera_arrays, glints_one_pose
 from .geometry.compiled import glints_kernel
 from .samples import FLUX_CUT_GLINTS, GazeSample, failed_sample
@@ -183,14 +182,13 @@ def flagged(calibration, camera, lights_world_m, sample: GazeSample, g, flux,
     return low
 
 
-def refit_without(tracker, sample: GazeSample, bad, min_glints: int,
-                  max_residual_px: float) -> GazeSample:
-    """``sample`` fitted again without its glints ``bad`` (k,) bool, by ``tracker``'s batched
-    fits from its last estimate; flagged lights recorded in ``flux_flagged``. A
-    prior-assisted sample keeps its fit (it would need its prior again) and only records them.
-    Fewer than ``min_glints`` left (own-glint samples): NaN, :data:`FLUX_CUT_GLINTS`. The
-    compiled small fit first (its estimate accepted up to ``max_residual_px``, the tracker's
-    limit), the batched fits where it declines, as :meth:`Tracker._dense` does."""
+def refit_without(tracker, sample: GazeSample, bad, min_glints: int) -> GazeSample:
+    """``sample`` fitted again without its glints ``bad`` (k,) bool, by ``tracker``'s own
+    estimate of identified glints (:meth:`Tracker._estimate`: the compiled small fit from its
+    last estimate, the batched fits where it declines, as a searched band); flagged lights
+    recorded in ``flux_flagged``. A prior-assisted sample keeps its fit (it would need its
+    prior again) and only records them. Fewer than ``min_glints`` left (own-glint samples):
+    NaN, :data:`FLUX_CUT_GLINTS`."""
     lights = sample.light_index[bad]
     if sample.prior_assisted:
         return replace(sample, flux_flagged=lights)
@@ -199,33 +197,13 @@ def refit_without(tracker, sample: GazeSample, bad, min_glints: int,
     if li.size < min_glints:
         return replace(failed_sample(sample.frame_index, sample.strobe_index, sample.time_s,
                                      FLUX_CUT_GLINTS, g, li), flux_flagged=lights)
-    quick = None
-    if tracker.follower is not None and match_kernels.ENABLED and not tracker.calibration.conic:
-        quick = searched_estimate(tracker._problems, tracker.method, g, li, tracker._start,
-                                  sample.cornea_center_m, tracker.follower.arrays,
-                                  tracker._gaze_point, max_residual_px)
-    if quick is not None:
-        xy, center, rms, resume = quick
-        tracker._start = np.array(resume, dtype=np.float64)
-        return replace(sample, screen_xy_m=np.array(xy, dtype=np.float64),
-                       cornea_center_m=np.array(center, dtype=np.float64), glints_px=g,
-                       light_index=li, residual_px=float(rms), confidence=sample.confidence[keep],
-                       flux_flagged=lights)
-    glints = tracker._glints(g, li)
-    if tracker.method == "polynomial":
-        est = polynomial_gaze(tracker.setup, tracker.calibration, glints, mapping=tracker.mapping,
-                              start=sample.cornea_center_m, problems=tracker._problems)
-    else:
-        start = (0.0, 0.0) if tracker._start is None else tracker._start
-        est = geometric_gaze(tracker.setup, tracker.calibration, glints, start=start,
-                             problems=tracker._problems)
-    reason = tracker._reason(est)
+    reason, xy, center, rms, resume = tracker._estimate(g, li, sample.cornea_center_m)
     if reason != "ok":
         return replace(failed_sample(sample.frame_index, sample.strobe_index, sample.time_s,
                                      f"{FLUX_CUT_GLINTS}_{reason}", g, li), flux_flagged=lights)
-    tracker._start = np.array(est.resume_from, dtype=np.float64)
-    return replace(sample, screen_xy_m=est.screen_xy_m[0].copy(),
-                   cornea_center_m=est.cornea_center_m[0].copy(), glints_px=g, light_index=li,
-                   residual_px=float(est.rms_px[0]), confidence=sample.confidence[keep],
+    tracker._start = np.array(resume, dtype=np.float64)
+    return replace(sample, screen_xy_m=np.array(xy, dtype=np.float64),
+                   cornea_center_m=np.array(center, dtype=np.float64), glints_px=g,
+                   light_index=li, residual_px=float(rms), confidence=sample.confidence[keep],
                    flux_flagged=lights)
 

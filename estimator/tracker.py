@@ -260,10 +260,10 @@ class Tracker:
         """``sample`` without its glints cut by a lash (:mod:`estimator.cut_glints`)."""
         if flux is None or not sample.ok:
             return sample
-        lights, arrays = self._problems.center.lights_world_m, self.matcher.arrays
-        bad = cut_glints.flagged(self.calibration, self.setup.camera, lights, sample, g, flux, arrays)
-        return (cut_glints.refit_without(self, sample, bad, MIN_GLINTS, MAX_RESIDUAL_PX)
-                if bad.any() else sample)
+        bad = cut_glints.flagged(self.calibration, self.setup.camera,
+                                 self._problems.center.lights_world_m, sample, g, flux,
+                                 self.matcher.arrays)
+        return cut_glints.refit_without(self, sample, bad, MIN_GLINTS) if bad.any() else sample
 
     def _keep(self, sample: GazeSample) -> GazeSample:  # a failed band loses the stream
         if not sample.ok:
@@ -285,28 +285,10 @@ class Tracker:
         match = self.matcher.match(g, rows=rows, prior_angles_rad=self._prior_angles)
         if not match.ok:
             return failed_sample(f, j, time_s, f"match_{match.reason}", g)
-        used = match.matched
-        lights = match.light_index[used]
+        used, lights = match.matched, match.light_index[match.matched]
         if lights.size < MIN_GLINTS:
             return failed_sample(f, j, time_s, "too_few_glints", g[used], lights)
-        glints = self._glints(g[used], lights)
-        quick = None
-        if self.follower is not None and match_kernels.ENABLED and not self.calibration.conic:
-            quick = searched_estimate(self._problems, self.method, g[used], lights, self._start,
-                                      match.cornea_center_m, self.follower.arrays,
-                                      self._gaze_point, MAX_RESIDUAL_PX)
-        if quick is not None:
-            (xy, center, rms, resume), reason = quick, "ok"
-        elif self.method == "polynomial":
-            est = polynomial_gaze(self.setup, self.calibration, glints, mapping=self.mapping,
-                                  start=self._start, problems=self._problems)
-        else:
-            est = geometric_gaze(self.setup, self.calibration, glints,
-                                 start=(0.0, 0.0) if self._start is None else self._start,
-                                 problems=self._problems)
-        if quick is None:
-            reason, xy, center = self._reason(est), est.screen_xy_m[0], est.cornea_center_m[0]
-            rms, resume = float(est.rms_px[0]), est.resume_from
+        reason, xy, center, rms, resume = self._estimate(g[used], lights, match.cornea_center_m)
         if reason == "ok" and self._implausible(time_s, match.angles_rad):
             reason = IMPLAUSIBLE_JUMP
         if reason != "ok":
@@ -314,12 +296,32 @@ class Tracker:
         self._prior_angles = match.angles_rad
         self._start = resume.copy()
         if self._orbit is not None:
-            mask = np.isfinite(glints[..., 0])
+            mask = np.isfinite(self._glints(g[used], lights)[..., 0])
             cov = fit_covariance(self._orbit, match.angles_rad, mask, model="orbit",
                                  noise_px=self.prior.noise_px)[0]
             self._set_state(time_s, match.angles_rad, cov)
         return GazeSample(f, j, time_s, xy.copy(), center.copy(), g[used], lights, rms, "ok",
                           match.confidence[used].copy())
+
+    def _estimate(self, g, lights, center_m):
+        """(reason, screen point, centre, RMS, next start) of identified glints g (k, 2): the
+        compiled small fit (estimates.searched_estimate), else the batched fits."""
+        if self.follower is not None and match_kernels.ENABLED and not self.calibration.conic:
+            quick = searched_estimate(self._problems, self.method, g, lights, self._start,
+                                      center_m, self.follower.arrays, self._gaze_point,
+                                      MAX_RESIDUAL_PX)
+            if quick is not None:
+                return ("ok", *quick)
+        glints = self._glints(g, lights)
+        if self.method == "polynomial":
+            est = polynomial_gaze(self.setup, self.calibration, glints, mapping=self.mapping,
+                                  start=self._start, problems=self._problems)
+        else:
+            est = geometric_gaze(self.setup, self.calibration, glints,
+                                 start=(0.0, 0.0) if self._start is None else self._start,
+                                 problems=self._problems)
+        return (self._reason(est), est.screen_xy_m[0], est.cornea_center_m[0],
+                float(est.rms_px[0]), est.resume_from)
 
     def _cheap(self, f, j, time_s, g, rows) -> GazeSample | None:
         """The cheap path's sample, or None where it declines (the search decides then). Its

@@ -122,6 +122,22 @@ def _fit(cam, g, lights, assign, x0, ce, rco, radius, xtol, pm, P, x, JtJ):
     return ok, cost, m, iters
 
 
+def _final(cam, g, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px, gate_px, group,
+           max_nodes, pred, vis, cand, inside, center, axis, no_jac, assign, dist):
+    """Candidates at ``x`` and the final assignment (gate ``gate_px``, the arcs' order, NaN
+    distances where unmatched) (:meth:`HypothesisSearch._final_assign`); False where the
+    assignment needs the solver."""
+    _candidates(cam, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px, pred, vis,
+                cand, inside, center, axis, no_jac, False)
+    if not _assign(g, pred, cand, gate_px, assign, dist, max_nodes):
+        return False
+    enforce_order(g, pred, assign, group)
+    for d in range(assign.shape[0]):
+        if assign[d] < 0:
+            dist[d] = np.nan
+    return True
+
+
 def follow_band(g, lo, hi, prior, weight, R, O, intr, size, rc, offset, radius, lights, cap,
                 ce, rco, fit_radius, xtol, group, shifted, prior_gate_px, gate_px,
                 band_margin_px, noise_px, unmatched_cost, missing_cost, prior_sigma_rad,
@@ -175,15 +191,12 @@ def follow_band(g, lo, hi, prior, weight, R, O, intr, size, rc, offset, radius, 
         x0[0], x0[1] = x[0], x[1]
         for d in range(k):
             prev[d] = assign[d]
-        _candidates(cam, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px, pred, vis,
-                    cand, inside, center, axis, no_jac, False)
-        if not _assign(g, pred, cand, gate_px, assign, dist, max_nodes):
+        if not _final(cam, g, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px,
+                      gate_px, group, max_nodes, pred, vis, cand, inside, center, axis, no_jac,
+                      assign, dist):
             return (FALLBACK, nan, nan, nan, nan, 0, 0)
-        enforce_order(g, pred, assign, group)
         same = True
         for d in range(k):
-            if assign[d] < 0:
-                dist[d] = nan
             same = same and assign[d] == prev[d]
         if same:
             settled = True
@@ -247,4 +260,5 @@ if ENABLED:
     _candidates = _jit(_candidates)
     _assign = _jit(_assign)
     _fit = _jit(_fit)
+    _final = _jit(_final)
     follow_band = _jit(follow_band)

@@ -23,28 +23,12 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import compiled
-from .follow_kernel import ENABLED, MAX_NODES, _assign, _candidates, _fit  # noqa: F401
-from .kernels import enforce_order
+from .follow_kernel import (  # noqa: F401 (MAX_NODES: the limit search.py passes)
+    ENABLED, MAX_NODES, _assign, _candidates, _final, _fit)
 
 #: :func:`refine_prior`'s outcomes: the hypotheses are in the outputs, or an assignment
 #: needs the optimal solver (run the Python form).
 REFINED, FALLBACK = 1, 2
-
-
-def _final(cam, g, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px, gate_px, group,
-           max_nodes, pred, vis, cand, inside, center, axis, no_jac, assign, dist):
-    """Candidates at ``x`` and the final assignment (gate ``gate_px``, the arcs' order, NaN
-    distances where unmatched) (:meth:`HypothesisSearch._final_assign`); False where the
-    assignment needs the solver."""
-    _candidates(cam, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px, pred, vis,
-                cand, inside, center, axis, no_jac, False)
-    if not _assign(g, pred, cand, gate_px, assign, dist, max_nodes):
-        return False
-    enforce_order(g, pred, assign, group)
-    for d in range(assign.shape[0]):
-        if assign[d] < 0:
-            dist[d] = np.nan
-    return True
 
 
 def refine_prior(g, lo, hi, X0, first, has_first, first_gate, R, O, intr, size, rc, offset,
@@ -184,5 +168,4 @@ def refine_prior(g, lo, hi, X0, first, has_first, first_gate, R, O, intr, size, 
 
 if ENABLED:
     _jit = compiled.numba.njit(cache=True, nogil=True, error_model="numpy")
-    _final = _jit(_final)
     refine_prior = _jit(refine_prior)

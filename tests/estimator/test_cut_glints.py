@@ -16,7 +16,7 @@ from estimator.gaze import polynomial_gaze
 from estimator.geometry import project_glints
 from estimator.samples import read_samples_csv, write_samples_csv
 from estimator.scene import load_scene
-from estimator.tracker import MAX_RESIDUAL_PX, MIN_GLINTS, Tracker
+from estimator.tracker import MIN_GLINTS, Tracker
 from tests.estimator.simulated import ground_truth_calibration
 from tests.estimator.test_tracker import draw_frame
 
@@ -117,7 +117,7 @@ def test_a_dim_displaced_glint_is_flagged_and_the_fit_drops_it(band):
     flux[2] *= 0.5  # log 0.5 = -0.69, beyond 2 x 0.1
     bad = _flagged(tr, cal, sample, flux)
     assert bad.tolist() == [i == 2 for i in range(sample.n_glints)]
-    refit = cut_glints.refit_without(tr, sample, bad, MIN_GLINTS, MAX_RESIDUAL_PX)
+    refit = cut_glints.refit_without(tr, sample, bad, MIN_GLINTS)
     assert refit.ok and refit.flux_flagged.tolist() == [int(sample.light_index[2])]
     assert sample.light_index[2] not in refit.light_index
     keep = ~bad
@@ -143,7 +143,7 @@ def test_too_few_glints_left_is_a_nan_sample_with_a_reason(band):
     tr, cal, sample = band
     bad = np.ones(sample.n_glints, dtype=bool)
     bad[:MIN_GLINTS - 1] = False
-    out = cut_glints.refit_without(tr, sample, bad, MIN_GLINTS, MAX_RESIDUAL_PX)
+    out = cut_glints.refit_without(tr, sample, bad, MIN_GLINTS)
     assert not out.ok and out.reason == "flux_cut_glints" and np.isnan(out.screen_xy_m).all()
     assert out.flux_flagged.size == bad.sum()
 
