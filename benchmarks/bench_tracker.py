@@ -180,7 +180,7 @@ def flux_cost(setup, cal, method, frames) -> dict:
     seconds and calls of the check of accepted bands and of the refits without flagged glints,
     and the pass's wall time against the same tracker without the check."""
     totals, calls = defaultdict(float), defaultdict(int)
-    saved = (cut_glints.flagged, cut_glints.refit_without)
+    saved = (cut_glints.flagged, Tracker._without)
 
     def timed(fn, stage):
         def call(*a, **k):
@@ -192,13 +192,13 @@ def flux_cost(setup, cal, method, frames) -> dict:
                 calls[stage] += 1
         return call
 
-    cut_glints.flagged, cut_glints.refit_without = timed(saved[0], "check"), timed(saved[1], "refit")
+    cut_glints.flagged, Tracker._without = timed(saved[0], "check"), timed(saved[1], "refit")
     try:
         run(Tracker(setup, cal, method, flag_cut_glints=True), frames[:3])  # warm-up
         totals.clear(), calls.clear()
         samples, lat = run(Tracker(setup, cal, method, flag_cut_glints=True), frames)
     finally:
-        cut_glints.flagged, cut_glints.refit_without = saved
+        cut_glints.flagged, Tracker._without = saved
     off, lat_off = run(Tracker(setup, cal, method), frames)
     return {"samples": len(samples), "wall": lat.sum(), "wall_off": lat_off.sum(),
             "flagged": sum(s.flux_flagged.size for s in samples), **{f"{k}_s": v for k, v in

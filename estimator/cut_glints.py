@@ -5,19 +5,18 @@ A lash across a glint's light path leaves part of the glint: its centroid moves 
 unoccluded glint's; README, "Moving lids, blinks and lashes"). The expected flux of every
 identified glint at the fitted pose (:class:`estimator.calibration.GlintFlux`: each light's
 calibrated power times the convex mirror's reflected irradiance) tells such a glint from a
-clear one; :func:`flagged` finds them and :func:`refit_without` fits the band again without.
-Both run compiled where Numba is (:data:`estimator.matching.kernels.ENABLED`): the check as
-one loop over the band's glints (:func:`log_ratios`, the numpy model of
-:func:`estimator.calibration.model_flux` otherwise), the refit by the tracker's estimate of
-identified glints (the compiled small fit, :func:`estimator.estimates.searched_estimate`,
-before the batched fits).
+clear one; :func:`flagged` finds them, and the tracker does the band again without them
+(:func:`kept_detections`) from the stream's state before the band: identification, fit and
+the prior the next band gets all come from the remaining glints, so a sample that took the
+prior is fitted again with its prior, and one left with too few glints of its own can still
+take it. The check runs compiled where Numba is (:data:`estimator.matching.kernels.ENABLED`):
+one loop over the band's glints (:func:`log_ratios`; the numpy model of
+:func:`estimator.calibration.model_flux` otherwise).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
-
 import numpy as np
 
 import estimator.matching.kernels as match_kernels
@@ -25,7 +24,7 @@ import estimator.matching.kernels as match_kernels
 from .eye import CORNEA_REFRACTIVE_INDEX
 from .geometry import camera_arrays, glints_one_pose
 from .geometry.compiled import glints_kernel
-from .samples import FLUX_CUT_GLINTS, GazeSample, failed_sample
+from .samples import GazeSample
 
 #: A glint is taken as cut by a lash where both its log(measured / expected flux) is below
 #: -FLUX_FLAG_SD times the calibration's own spread (:attr:`GlintFlux.log_sd`, dimensionless
@@ -182,28 +181,10 @@ def flagged(calibration, camera, lights_world_m, sample: GazeSample, g, flux,
     return low
 
 
-def refit_without(tracker, sample: GazeSample, bad, min_glints: int) -> GazeSample:
-    """``sample`` fitted again without its glints ``bad`` (k,) bool, by ``tracker``'s own
-    estimate of identified glints (:meth:`Tracker._estimate`: the compiled small fit from its
-    last estimate, the batched fits where it declines, as a searched band); flagged lights
-    recorded in ``flux_flagged``. A prior-assisted sample keeps its fit (it would need its
-    prior again) and only records them. Fewer than ``min_glints`` left (own-glint samples):
-    NaN, :data:`FLUX_CUT_GLINTS`."""
-    lights = sample.light_index[bad]
-    if sample.prior_assisted:
-        return replace(sample, flux_flagged=lights)
-    keep = ~bad
-    g, li = sample.glints_px[keep], sample.light_index[keep]
-    if li.size < min_glints:
-        return replace(failed_sample(sample.frame_index, sample.strobe_index, sample.time_s,
-                                     FLUX_CUT_GLINTS, g, li), flux_flagged=lights)
-    reason, xy, center, rms, resume = tracker._estimate(g, li, sample.cornea_center_m)
-    if reason != "ok":
-        return replace(failed_sample(sample.frame_index, sample.strobe_index, sample.time_s,
-                                     f"{FLUX_CUT_GLINTS}_{reason}", g, li), flux_flagged=lights)
-    tracker._start = np.array(resume, dtype=np.float64)
-    return replace(sample, screen_xy_m=np.array(xy, dtype=np.float64),
-                   cornea_center_m=np.array(center, dtype=np.float64), glints_px=g,
-                   light_index=li, residual_px=float(rms), confidence=sample.confidence[keep],
-                   flux_flagged=lights)
-
+def kept_detections(g, cut) -> np.ndarray:
+    """(m,) bool: the band's detections ``g`` (m, 2) that are not among the flagged glints
+    ``cut`` (c, 2) (a sample's glints are copies of detections)."""
+    if cut.shape[0] == 0:
+        return np.ones(g.shape[0], dtype=bool)
+    same = (g[:, None, 0] == cut[None, :, 0]) & (g[:, None, 1] == cut[None, :, 1])
+    return ~same.any(axis=1)

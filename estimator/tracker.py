@@ -45,13 +45,13 @@ import estimator.matching.kernels as match_kernels
 from .banding import band_rows, strobe_instant
 from .calibration import Calibration
 from .cornea import fit_covariance
-from .estimates import assisted_estimate, searched_estimate
+from .assisted import assisted_sample
+from .estimates import searched_estimate
 from .eye import gaze_direction
 from .gaze import (
     calibrated_problems,
     geometric_gaze,
     polynomial_gaze,
-    posterior_covariance,
     screen_intersection,
 )
 from .glints import NO_BAND, DetectionParams, GlintDetector
@@ -245,25 +245,44 @@ class Tracker:
 
     def _band(self, f: int, g, band, time_s: float, flux=None) -> GazeSample:
         """Sample of a band of frame f: glints g (k, 2), band (pulse, (first row, last row)),
-        the glints' flux (k,) where cut glints are flagged."""
+        the glints' flux (k,) where cut glints are flagged: a band with a flagged glint is
+        done again, from the stream's state before it, without the flagged detections
+        (:func:`estimator.cut_glints.flagged`; the sample records their lights in
+        ``flux_flagged``, a failure's reason is prefixed :data:`FLUX_CUT_GLINTS`)."""
+        if flux is None:
+            return self._sample(f, g, band, time_s)
+        before = (self._prior_angles, self._start, self._state, self._velocity)
+        sample = self._sample(f, g, band, time_s)
+        if not sample.ok:
+            return sample
+        bad = cut_glints.flagged(self.calibration, self.setup.camera,
+                                 self._problems.center.lights_world_m, sample, g, flux,
+                                 self.matcher.arrays)
+        if not bad.any():
+            return sample
+        self._prior_angles, self._start, self._state, self._velocity = before
+        return self._without(f, g, band, time_s, sample, bad)
+
+    def _without(self, f: int, g, band, time_s: float, sample: GazeSample, bad) -> GazeSample:
+        """The band of ``sample`` done again without its glints ``bad`` (k,) bool."""
+        again = self._sample(f, g[cut_glints.kept_detections(g, sample.glints_px[bad])], band,
+                             time_s)
+        lights = sample.light_index[bad]
+        if again.ok:
+            return replace(again, flux_flagged=lights)
+        return replace(again, reason=f"{FLUX_CUT_GLINTS}_{again.reason}", flux_flagged=lights)
+
+    def _sample(self, f: int, g, band, time_s: float) -> GazeSample:
+        """:meth:`_band`'s sample of glints g, identified on their own or from the prior."""
         j, rows = band
         if g.shape[0] < MIN_GLINTS:
             sample = failed_sample(f, j, time_s, "match_too_few_glints", g)
         else:
             sample = self._dense(f, j, time_s, g, rows)
             if sample.ok or sample.reason not in IDENTITY_FAILURES:
-                return self._keep(self._check_flux(sample, g, flux))
+                return self._keep(sample)
         self._lose()
-        return self._keep(self._check_flux(self._assisted(f, j, time_s, g, rows, sample), g, flux))
-
-    def _check_flux(self, sample: GazeSample, g, flux) -> GazeSample:
-        """``sample`` without its glints cut by a lash (:mod:`estimator.cut_glints`)."""
-        if flux is None or not sample.ok:
-            return sample
-        bad = cut_glints.flagged(self.calibration, self.setup.camera,
-                                 self._problems.center.lights_world_m, sample, g, flux,
-                                 self.matcher.arrays)
-        return cut_glints.refit_without(self, sample, bad, MIN_GLINTS) if bad.any() else sample
+        return self._keep(self._assisted(f, j, time_s, g, rows, sample))
 
     def _keep(self, sample: GazeSample) -> GazeSample:  # a failed band loses the stream
         if not sample.ok:
@@ -390,55 +409,8 @@ class Tracker:
 
     def _assisted(self, f, j, time_s, g, rows, failed: GazeSample) -> GazeSample:
         """A sparse band (or one whose identification failed) with the previous sample's
-        estimate as prior; ``failed`` when there is no usable prior or no glint."""
-        if self._state is None or g.shape[0] == 0:
-            return failed
-        t0, mean, cov0 = self._state
-        cov = self.prior.predict(cov0, time_s - t0)
-        if cov is None:
-            return failed
-        match = self.matcher.match_near(g, mean, cov, rows=rows)
-        if not match.ok:
-            return replace(failed, reason=PRIOR_PREFIX + match.reason)
-        used = match.matched
-        lights = match.light_index[used]
-        glints = self._glints(g[used], lights)
-        # The compiled small fit models the sphere: a conic calibration takes the batched fits.
-        quick = (assisted_estimate(self._problems.orbit, g[used], lights, mean, cov,
-                                   self.prior.noise_px, self.follower.arrays, self._gaze_point,
-                                   MAX_RESIDUAL_PX)
-                 if self.follower and not self.calibration.conic and match_kernels.ENABLED
-                 else None)
-        post = None
-        if quick is not None:
-            xy, center, angles, rms, JtJ = quick
-            # (Σ_glints⁻¹ + Σ_prior⁻¹)⁻¹ from the fit's own JᵀJ, as posterior_covariance
-            # builds it from the analytic one (glints that leave an angle undetermined add
-            # nothing).
-            info = inverse_2x2(cov, 0.0)  # the prior's: positive definite
-            if inverse_2x2(JtJ) is not None:
-                info = info + JtJ / self.prior.noise_px ** 2
-            post = inverse_2x2(info, 0.0)
-        else:
-            prior = dict(prior_mean_rad=mean, prior_cov_rad2=cov, noise_px=self.prior.noise_px,
-                         problems=self._problems)
-            if self.method == "polynomial":
-                est = polynomial_gaze(self.setup, self.calibration, glints, mapping=self.mapping,
-                                      **prior)
-            else:
-                est = geometric_gaze(self.setup, self.calibration, glints, **prior)
-            reason = self._reason(est)
-            if reason != "ok":
-                return failed_sample(f, j, time_s, PRIOR_PREFIX + reason, g[used], lights)
-            xy, center, angles = est.screen_xy_m[0], est.cornea_center_m[0], est.angles_rad[0]
-            rms = float(est.rms_px[0])
-        if post is None:
-            post = posterior_covariance(self._orbit, angles, np.isfinite(glints[..., 0]), cov,
-                                        self.prior.noise_px)[0]
-        self._set_state(time_s, angles, post)
-        self._prior_angles = angles.copy()
-        return GazeSample(f, j, time_s, xy.copy(), center.copy(), g[used], lights, rms, "ok",
-                          match.confidence[used].copy(), prior_assisted=True)
+        estimate as prior (:func:`estimator.assisted.assisted_sample`)."""
+        return assisted_sample(self, f, j, time_s, g, rows, failed, max_residual_px=MAX_RESIDUAL_PX)
 
     def _gaze_point(self, center_m, angles_rad) -> np.ndarray:
         """The screen point (2,) of one estimate: the mapping of its cornea centre

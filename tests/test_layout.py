@@ -31,7 +31,7 @@ LAYERS = {
         {"gaze"},
         {"glints", "capture"},
         {"matching"},
-        {"tracker", "samples", "estimates", "cut_glints"},
+        {"tracker", "samples", "estimates", "cut_glints", "assisted"},
         {"inputs", "folders"},
         {"live"},
     ],

@@ -1,5 +1,6 @@
 """Glints cut by a lash: the expected-flux model, its calibration file key, the flag and the
-refit without the flagged glints (estimator.calibration.flux, estimator.cut_glints)."""
+band done again without the flagged glints (estimator.calibration.flux, estimator.cut_glints,
+Tracker._band)."""
 
 import json
 from dataclasses import replace
@@ -9,6 +10,7 @@ import pytest
 
 import estimator.cut_glints as cut_glints
 import estimator.matching.kernels as match_kernels
+from estimator.banding import band_rows
 from estimator.calibration import Calibration, GlintFlux, fit_glint_flux, model_flux
 from estimator.calibration.flux import fresnel_reflectance
 from estimator.errors import InputError
@@ -110,22 +112,103 @@ def _cut(sample, i, shift_px):
     return replace(sample, glints_px=g)
 
 
-def test_a_dim_displaced_glint_is_flagged_and_the_fit_drops_it(band):
+def _band_of(tr, sample):
+    """(pulse, (first row, last row)) of ``sample``'s band."""
+    pulses, _, first, last = band_rows(tr.setup.sensor, tr.setup.strobe, sample.frame_index)
+    k = list(pulses).index(sample.strobe_index)
+    return int(pulses[k]), (int(first[k]), int(last[k]))
+
+
+def _state(tr):
+    return tr._prior_angles, tr._start, tr._state, tr._velocity
+
+
+def _flagged_and_reference(tr, sample, g, flux, drop, time_s=None):
+    """The band of detections g with flux, the flag on, from ``tr``'s present state; the same
+    band without the detections ``drop`` (bool) and the flag off, from the same state; and the
+    tracker state after each."""
+    band, t = _band_of(tr, sample), sample.time_s if time_s is None else time_s
+    before = _state(tr)
+    tr._flag_cut = True
+    try:
+        out = tr._band(sample.frame_index, g, band, t, flux)
+    finally:
+        tr._flag_cut = False
+    after = _state(tr)
+    tr._prior_angles, tr._start, tr._state, tr._velocity = before
+    ref = tr._band(sample.frame_index, g[~drop], band, t)
+    ref_after = _state(tr)
+    tr._prior_angles, tr._start, tr._state, tr._velocity = before
+    return out, after, ref, ref_after
+
+
+def _same_state(a, b):
+    for x, y in zip(a, b):
+        if isinstance(x, tuple):
+            assert x[0] == y[0] and np.array_equal(x[1], y[1]) and np.array_equal(x[2], y[2])
+        else:
+            assert (x is None and y is None) or np.array_equal(x, y)
+
+
+def test_a_dim_displaced_glint_is_flagged_and_the_band_done_again_without_it(band):
     tr, cal, clean = band
     sample = _cut(clean, 2, 0.6)  # 3 x the calibration's 0.2 px
     flux = _expected(tr, cal, sample)
     flux[2] *= 0.5  # log 0.5 = -0.69, beyond 2 x 0.1
     bad = _flagged(tr, cal, sample, flux)
     assert bad.tolist() == [i == 2 for i in range(sample.n_glints)]
-    refit = cut_glints.refit_without(tr, sample, bad, MIN_GLINTS)
-    assert refit.ok and refit.flux_flagged.tolist() == [int(sample.light_index[2])]
-    assert sample.light_index[2] not in refit.light_index
+    out, after, ref, ref_after = _flagged_and_reference(tr, sample, sample.glints_px, flux, bad)
+    assert out.ok and ref.ok and not out.prior_assisted
+    assert out.flux_flagged.tolist() == [int(sample.light_index[2])]
+    assert sample.light_index[2] not in out.light_index
+    # The sample and the prior the next band gets are those of the band without the cut glint.
+    assert np.array_equal(out.screen_xy_m, ref.screen_xy_m)
+    assert np.array_equal(out.cornea_center_m, ref.cornea_center_m)
+    _same_state(after, ref_after)
     keep = ~bad
     glints = tr._glints(sample.glints_px[keep], sample.light_index[keep])
     est = polynomial_gaze(tr.setup, cal, glints, mapping=tr.mapping,
-                          start=sample.cornea_center_m, problems=tr._problems)
-    assert np.allclose(refit.cornea_center_m, est.cornea_center_m[0], rtol=0, atol=1e-9)
-    assert np.allclose(refit.screen_xy_m, est.screen_xy_m[0], rtol=0, atol=1e-9)
+                          start=out.cornea_center_m, problems=tr._problems)
+    assert np.allclose(out.cornea_center_m, est.cornea_center_m[0], rtol=0, atol=1e-9)
+
+
+def test_a_prior_assisted_band_is_fitted_again_with_its_prior(band):
+    tr, cal, clean = band
+    # Four glints, fewer than the tracker fits on their own: the band takes the prior.
+    k = MIN_GLINTS - 1
+    four = replace(_cut(clean, 2, 1.0), glints_px=_cut(clean, 2, 1.0).glints_px[:k],
+                   light_index=clean.light_index[:k], confidence=clean.confidence[:k])
+    flux = _expected(tr, cal, four)
+    flux[2] *= 0.4
+    t = tr._state[0] + 1.0e-3  # the next band, 1 ms after the stream's last sample
+    drop = np.arange(k) == 2
+    out, after, ref, ref_after = _flagged_and_reference(tr, four, four.glints_px, flux, drop, t)
+    assert out.ok and out.prior_assisted and ref.prior_assisted
+    assert out.flux_flagged.tolist() == [int(clean.light_index[2])]
+    assert out.light_index.tolist() == ref.light_index.tolist() and out.n_glints == k - 1
+    assert np.array_equal(out.screen_xy_m, ref.screen_xy_m)
+    _same_state(after, ref_after)
+
+
+def test_too_few_glints_left_without_a_prior_is_a_nan_sample_with_a_reason(band):
+    tr, cal, sample = band
+    before = _state(tr)
+    tr._prior_angles, tr._start, tr._state, tr._velocity = None, None, None, None
+    try:
+        flux = _expected(tr, cal, sample)
+        g = sample.glints_px.copy()
+        many = np.arange(sample.n_glints) >= MIN_GLINTS - 1  # all but MIN_GLINTS - 1 cut
+        g[many, 0] += 0.8
+        flux[many] *= 0.3
+        tr._flag_cut = True
+        out = tr._band(sample.frame_index, g, _band_of(tr, sample), sample.time_s, flux)
+    finally:
+        tr._flag_cut = False
+        tr._prior_angles, tr._start, tr._state, tr._velocity = before
+    if out.flux_flagged.size == 0:  # the cut glints pulled the fit too far to stand out
+        pytest.fail(f"nothing flagged: {out.reason}")
+    assert not out.ok and out.reason.startswith("flux_cut_glints_")
+    assert np.isnan(out.screen_xy_m).all()
 
 
 def test_glints_at_their_expected_flux_or_in_place_are_not_flagged(band):
@@ -137,15 +220,6 @@ def test_glints_at_their_expected_flux_or_in_place_are_not_flagged(band):
     flux = _expected(tr, cal, clean)
     flux[2] *= 0.5
     assert not _flagged(tr, cal, _cut(clean, 2, 0.1), flux).any()
-
-
-def test_too_few_glints_left_is_a_nan_sample_with_a_reason(band):
-    tr, cal, sample = band
-    bad = np.ones(sample.n_glints, dtype=bool)
-    bad[:MIN_GLINTS - 1] = False
-    out = cut_glints.refit_without(tr, sample, bad, MIN_GLINTS)
-    assert not out.ok and out.reason == "flux_cut_glints" and np.isnan(out.screen_xy_m).all()
-    assert out.flux_flagged.size == bad.sum()
 
 
 def test_fit_recovers_each_lights_power_from_noisy_frames(setup, rng=np.random.default_rng(5)):
