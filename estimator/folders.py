@@ -32,7 +32,6 @@ import numpy as np
 
 from .banding import NO_PULSE, row_strobe
 from .calibration import (
-    IDENTIFY_ROUNDS,
     MAPPING_TERMS,
     Calibration,
     calibrate_joint,
@@ -40,7 +39,7 @@ from .calibration import (
     calibration_warnings,
     fit_gaze_mapping,
     fit_glint_flux,
-    identify_on_conic,
+    reidentify_on_conic,
 )
 from .capture import is_capture_folder
 from .checks import load_json
@@ -230,18 +229,12 @@ def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere")
     if cornea_model == "conic":
         # The spherical matcher's identities of oblique glints are wrong on a conic cornea:
         # identify every detected frame again on the calibrated conic, and recalibrate.
-        targets = np.array([t for _, t, _ in cg.detected])
-        previous = None
-        for _ in range(IDENTIFY_ROUNDS):
-            g = identify_on_conic(cal, cal_setup, [d for _, _, d in cg.detected], targets,
-                                  gate_px=MatchParams().gate_px)
-            enough = np.isfinite(g[..., 0]).sum(axis=1) >= MIN_GLINTS
-            if enough.sum() < 4 or (previous is not None and np.array_equal(
-                    np.isfinite(g), np.isfinite(previous)) and np.allclose(g, previous, equal_nan=True)):
-                break
-            previous = g
-            cal = calibrate_from_glints(cal_setup, g[enough], targets[enough], frames_total=total,
-                                        cornea_model="conic")
+        cal = reidentify_on_conic(
+            cal, cal_setup, [d for _, _, d in cg.detected],
+            np.array([t for _, t, _ in cg.detected]),
+            lambda g, t: calibrate_from_glints(cal_setup, g, t, frames_total=total,
+                                               cornea_model="conic"),
+            gate_px=MatchParams().gate_px, min_glints=MIN_GLINTS)
     return cal
 
 
