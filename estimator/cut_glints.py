@@ -17,6 +17,7 @@ one loop over the band's glints (:func:`log_ratios`; the numpy model of
 from __future__ import annotations
 
 import math
+
 import numpy as np
 
 import estimator.matching.kernels as match_kernels

@@ -37,8 +37,9 @@ IMPLAUSIBLE_JUMP = "implausible_jump"
 #: a frame while the eye looks down, a band of lid clutter): the band is not searched (a search
 #: could match it only at a rotation :data:`IMPLAUSIBLE_JUMP` rejects) and is left to the prior.
 OUT_OF_REACH = "band_out_of_reach"
-#: Too few glints left after dropping those cut by a lash (``estimator.cut_glints``); with a
-#: suffix (``flux_cut_glints_not_converged``) where the refit without them failed.
+#: Prefix of the reason of a band that failed when done again without its glints cut by a lash
+#: (``estimator.cut_glints``): ``flux_cut_glints_<reason>``, e.g.
+#: ``flux_cut_glints_match_too_few_glints``.
 FLUX_CUT_GLINTS = "flux_cut_glints"
 #: Prefix of the reason of a sparse band whose prior-assisted estimate failed too (e.g.
 #: "prior_ambiguous", "prior_residual_too_large"): a prior was there, it did not suffice.

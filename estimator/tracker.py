@@ -124,7 +124,8 @@ class Tracker:
         fail. ``False`` runs the search on every band (the reference it is compared with).
         Needs the calibration's eye centre and orbit radius and the ``"orbit"`` model.
     flag_cut_glints : bool
-        Drop glints whose flux says a lash cuts them and refit (:mod:`estimator.cut_glints`;
+        Drop glints whose flux says a lash cuts them and do the band again without them
+        (:meth:`_band`, :mod:`estimator.cut_glints`;
         off by default, README "Moving lids, blinks and lashes"); needs ``glint_flux``.
     """
 

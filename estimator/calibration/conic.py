@@ -274,9 +274,9 @@ def _reidentify(calibration, setup, detections, targets, calibrate, factor, gate
     cal, previous, last = calibration, None, np.inf
     for _ in range(rounds):
         rms = float(cal.quality.get("rms_px", np.nan))
-        # The exclusion at least halves from round to round: the glints come in gradually.
-        crowded = factor * rms if np.isfinite(rms) else 0.0
-        if np.isfinite(last) and factor > 0:
+        crowded = factor * rms if factor > 0 and np.isfinite(rms) else 0.0
+        if crowded > 0 and np.isfinite(last):
+            # At most halving from round to round: the glints come in gradually.
             crowded = min(last, max(crowded, last / 2.0))
         if crowded < MIN_CROWDED_PX:
             crowded = 0.0

@@ -123,6 +123,10 @@ def _state(tr):
     return tr._prior_angles, tr._start, tr._state, tr._velocity
 
 
+def _restore(tr, state):
+    tr._prior_angles, tr._start, tr._state, tr._velocity = state
+
+
 def _flagged_and_reference(tr, sample, g, flux, drop, time_s=None):
     """The band of detections g with flux, the flag on, from ``tr``'s present state; the same
     band without the detections ``drop`` (bool) and the flag off, from the same state; and the
@@ -135,10 +139,10 @@ def _flagged_and_reference(tr, sample, g, flux, drop, time_s=None):
     finally:
         tr._flag_cut = False
     after = _state(tr)
-    tr._prior_angles, tr._start, tr._state, tr._velocity = before
+    _restore(tr, before)
     ref = tr._band(sample.frame_index, g[~drop], band, t)
     ref_after = _state(tr)
-    tr._prior_angles, tr._start, tr._state, tr._velocity = before
+    _restore(tr, before)
     return out, after, ref, ref_after
 
 
@@ -193,7 +197,7 @@ def test_a_prior_assisted_band_is_fitted_again_with_its_prior(band):
 def test_too_few_glints_left_without_a_prior_is_a_nan_sample_with_a_reason(band):
     tr, cal, sample = band
     before = _state(tr)
-    tr._prior_angles, tr._start, tr._state, tr._velocity = None, None, None, None
+    _restore(tr, (None, None, None, None))
     try:
         flux = _expected(tr, cal, sample)
         g = sample.glints_px.copy()
@@ -204,7 +208,7 @@ def test_too_few_glints_left_without_a_prior_is_a_nan_sample_with_a_reason(band)
         out = tr._band(sample.frame_index, g, _band_of(tr, sample), sample.time_s, flux)
     finally:
         tr._flag_cut = False
-        tr._prior_angles, tr._start, tr._state, tr._velocity = before
+        _restore(tr, before)
     if out.flux_flagged.size == 0:  # the cut glints pulled the fit too far to stand out
         pytest.fail(f"nothing flagged: {out.reason}")
     assert not out.ok and out.reason.startswith("flux_cut_glints_")
