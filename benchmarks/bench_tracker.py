@@ -31,7 +31,9 @@ Usage:
 With ``--calibration FILE`` (a calibration with ``glint_flux``: ``scet calibrate`` of the
 dataset's calibration frames) it also times the cut-glint check
 (``Tracker(flag_cut_glints=True)``): microseconds per checked band, per refit, and the pass
-against the same tracker without it.
+against the same tracker without it (``flag_cut_glints=False``). The other passes run the
+tracker as it is by default: they check for cut glints where the calibration has
+``glint_flux``.
 
 60 frames are one second of video: a stream's first cold search and the searches after
 saccades that cross a frame gap weigh in as in a longer run.
@@ -199,7 +201,7 @@ def flux_cost(setup, cal, method, frames) -> dict:
         samples, lat = run(Tracker(setup, cal, method, flag_cut_glints=True), frames)
     finally:
         cut_glints.flagged, Tracker._without = saved
-    off, lat_off = run(Tracker(setup, cal, method), frames)
+    off, lat_off = run(Tracker(setup, cal, method, flag_cut_glints=False), frames)
     return {"samples": len(samples), "wall": lat.sum(), "wall_off": lat_off.sum(),
             "flagged": sum(s.flux_flagged.size for s in samples), **{f"{k}_s": v for k, v in
                                                                       totals.items()},

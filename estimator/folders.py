@@ -356,12 +356,12 @@ class TrackSummary:
 
 
 def tracking_calibration(folder, calibration, out_csv, *, method: str = "polynomial",
-                         mapping: str | None = None, flag_cut_glints: bool = False,
+                         mapping: str | None = None, flag_cut_glints: bool | None = None,
                          n_lights: int | None = None) -> tuple[Calibration, str]:
     """The checks of a folder run (:func:`track_folder`, :func:`estimator.live.track_following`)
     before anything is read: ``out_csv`` must not be one of the inputs, and the calibration (or
-    its file, loaded) must hold what ``method`` needs, and with ``flag_cut_glints`` the glint
-    flux of the rig's ``n_lights`` lights; ``mapping`` defaults to the calibration's Eq. (1)
+    its file, loaded) must hold what ``method`` needs, and with ``flag_cut_glints=True`` the
+    glint flux of the rig's ``n_lights`` lights; ``mapping`` defaults to the calibration's Eq. (1)
     mapping. Returns the calibration and the mapping name."""
     inputs = input_files(folder)
     source = "the calibration"
@@ -409,15 +409,16 @@ def track_frame(tracker: Tracker, frame: int, frame_start_s, image, error: str |
 def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "polynomial",
                  mapping: str | None = None,
                  progress: Callable[[int, int], None] | None = None,
-                 flag_cut_glints: bool = False) -> TrackSummary:
+                 flag_cut_glints: bool | None = None) -> TrackSummary:
     """Track every frame of a folder and write ``samples.csv`` atomically.
 
     Parameters
     ----------
     folder : path
         Frames and timing sidecar (or a rendered dataset's manifest).
-    flag_cut_glints : bool
-        :class:`~estimator.tracker.Tracker`'s: drop glints a lash cuts (by their flux).
+    flag_cut_glints : bool or None
+        :class:`~estimator.tracker.Tracker`'s: drop glints a lash cuts (by their flux);
+        None: where the calibration has ``glint_flux``, True: refuse one without it.
     setup : Setup
     calibration : Calibration or path
         A calibration, or the path of a calibration file.

@@ -123,7 +123,7 @@ def follow_frames(folder, setup: Setup, *, timeout_s: float = 5.0, poll_s: float
 def track_following(folder, setup: Setup, calibration, out_csv, *, method: str = "polynomial",
                     mapping: str | None = None, timeout_s: float = 5.0, poll_s: float = 0.005,
                     progress: Callable[[int, int], None] | None = None,
-                    flag_cut_glints: bool = False, **wait) -> TrackSummary:
+                    flag_cut_glints: bool | None = None, **wait) -> TrackSummary:
     """Track a folder's frames as they are written (:func:`follow_frames`) and write
     ``samples.csv`` when it ends; ``progress(done, total)`` after every frame (total: the
     frames so far, or a dataset's count). Other arguments as

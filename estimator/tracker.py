@@ -123,16 +123,18 @@ class Tracker:
         first band, after a sample older than :data:`JUMP_AGE_S`, and wherever its checks
         fail. ``False`` runs the search on every band (the reference it is compared with).
         Needs the calibration's eye centre and orbit radius and the ``"orbit"`` model.
-    flag_cut_glints : bool
+    flag_cut_glints : bool or None
         Drop glints whose flux says a lash cuts them and do the band again without them
-        (:meth:`_band`, :mod:`estimator.cut_glints`;
-        off by default, README "Moving lids, blinks and lashes"); needs ``glint_flux``.
+        (:meth:`_band`, :mod:`estimator.cut_glints`; README "Moving lids, blinks and
+        lashes"). It needs the calibration's ``glint_flux`` for the rig's lights: ``True``
+        refuses a calibration without it, ``None`` (the default) flags where the calibration
+        has it (a spherical calibration from images), ``False`` never flags.
     """
 
     def __init__(self, setup: Setup, calibration: Calibration, method: str = "polynomial", *,
                  mapping: str = "eq1_25", detection: DetectionParams = DetectionParams(),
                  matching: MatchParams = MatchParams(), prior: BandPrior | None = BandPrior(),
-                 cheap: bool = True, flag_cut_glints: bool = False):
+                 cheap: bool = True, flag_cut_glints: bool | None = None):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         if not isinstance(calibration, Calibration):
@@ -145,10 +147,11 @@ class Tracker:
         self.setup, self.calibration, self.method, self.mapping = setup, calibration, method, mapping
         self.detection = detection
         gf = calibration.glint_flux
-        if flag_cut_glints and (gf is None or gf.log_power.size != setup.lights.count):
+        fluxed = gf is not None and gf.log_power.size == setup.lights.count
+        if flag_cut_glints and not fluxed:
             raise ValueError(f"flag_cut_glints needs a calibration with glint_flux for the "
                              f"{setup.lights.count} lights (recalibrate)")
-        self._flag_cut = bool(flag_cut_glints)
+        self._flag_cut = fluxed if flag_cut_glints is None else bool(flag_cut_glints)
         # Detection reuses the sensor's noise model from frame to frame (measured again every
         # 30 frames, on a 5 % level drift, and after every reset of the stream).
         self._detector = GlintDetector(setup, detection)
@@ -167,8 +170,8 @@ class Tracker:
         if cheap and self.prior is not None and (self._map is None or self._map.n_features == 3):
             self.follower = BandFollower(self.matcher, FollowParams(min_matches=MIN_GLINTS))
         #: Dense bands identified by the cheap path, by the hypothesis search, and left to the
-        #: prior unsearched (:meth:`_unfillable`).
-        self.counts = {"cheap": 0, "search": 0, "unfillable": 0}
+        #: prior unsearched (:meth:`_unfillable`); bands done again without cut glints.
+        self.counts = {"cheap": 0, "search": 0, "unfillable": 0, "again": 0}
         self.reset()
 
     def reset(self) -> None:
@@ -247,12 +250,14 @@ class Tracker:
     def _band(self, f: int, g, band, time_s: float, flux=None) -> GazeSample:
         """Sample of a band of frame f: glints g (k, 2), band (pulse, (first row, last row)),
         the glints' flux (k,) where cut glints are flagged: a band with a flagged glint is
-        done again, from the stream's state before it, without the flagged detections
+        done again, from the stream's state before it with the first pass's rotation as the
+        prior of its identification, without the flagged detections
         (:func:`estimator.cut_glints.flagged`; the sample records their lights in
         ``flux_flagged``, a failure's reason is prefixed :data:`FLUX_CUT_GLINTS`)."""
         if flux is None:
             return self._sample(f, g, band, time_s)
         before = (self._prior_angles, self._start, self._state, self._velocity)
+        counts = dict(self.counts)
         sample = self._sample(f, g, band, time_s)
         if not sample.ok:
             return sample
@@ -261,7 +266,14 @@ class Tracker:
                                  self.matcher.arrays)
         if not bad.any():
             return sample
+        # The first pass's rotation seeds the second (the cheap path then identifies the band
+        # from it instead of searching again); the rest of the state is the one before the band.
+        first = self._prior_angles
         self._prior_angles, self._start, self._state, self._velocity = before
+        if first is not None:
+            self._prior_angles = first
+        self.counts = counts  # the band counts once, by the path of its second pass
+        self.counts["again"] += 1
         return self._without(f, g, band, time_s, sample, bad)
 
     def _without(self, f: int, g, band, time_s: float, sample: GazeSample, bad) -> GazeSample:

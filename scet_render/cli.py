@@ -397,10 +397,12 @@ def build_parser() -> argparse.ArgumentParser:
                         "dataset's last frame or --timeout seconds without a new frame")
     p.add_argument("--timeout", type=finite(0.001, 86400.0), default=5.0,
                    help="with --follow: seconds without a new frame before stopping (default 5)")
-    p.add_argument("--flag-cut-glints", action="store_true",
+    p.add_argument("--flag-cut-glints", action=argparse.BooleanOptionalAction, default=None,
                    help="drop glints whose flux is far below the calibration's expected flux "
-                        "and off where the fitted pose puts them (cut by a lash), and refit "
-                        "without them (needs a calibration from this version's scet calibrate)")
+                        "and off where the fitted pose puts them (cut by a lash), and do the "
+                        "band again without them; default: where the calibration has "
+                        "glint_flux (a spherical calibration from this version's scet "
+                        "calibrate); --flag-cut-glints refuses a calibration without it")
     p.set_defaults(func=cmd_track)
 
     add_dataset_parsers(sub)

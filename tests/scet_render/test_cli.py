@@ -97,3 +97,8 @@ def test_track_refuses_to_flag_cut_glints_without_glint_flux(capsys, tmp_path):
     err = capsys.readouterr().err
     assert "old.json" in err and "no glint_flux" in err  # the file and the key
     assert not (tmp_path / "s.csv").exists()
+    # Without the option the flag is on only where the calibration can flag: this one tracks.
+    for extra in ([], ["--no-flag-cut-glints"]):
+        assert main(["track", str(folder), "--calibration", str(tmp_path / "old.json"),
+                     "--out", str(tmp_path / "s.csv")] + extra) == 0
+        assert (tmp_path / "s.csv").exists()
