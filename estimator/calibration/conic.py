@@ -243,7 +243,8 @@ def identify_on_conic(calibration, setup, detections, targets_m, *, gate_px: flo
 
 
 def reidentify_on_conic(calibration, setup, detections, targets_m, calibrate, *,
-                        gate_px: float, min_glints: int, rounds: int = IDENTIFY_ROUNDS):
+                        gate_px: float, min_glints: int, rounds: int = IDENTIFY_ROUNDS,
+                        fitted_px=None):
     """A conic calibration made again from the frames' glints identified on it, until the
     identities no longer change: first leaving out the glints crowded within
     :data:`CROWDED_RMS` times their predicted error (px: the calibration's RMS and, from the
@@ -266,24 +267,29 @@ def reidentify_on_conic(calibration, setup, detections, targets_m, calibrate, *,
         (fewer: the last calibration is kept).
     rounds : int
         Most recalibrations.
+    fitted_px : (m, n, 2) float, optional
+        The glints ``calibration`` was fitted to (NaN: none), rows as ``targets_m``: its
+        predictions' standard errors then widen the first round's exclusion too. Without
+        them the first round trusts its RMS.
 
     Returns
     -------
     Calibration
     """
     targets = np.asarray(targets_m, dtype=np.float64)
+    fitted = None if fitted_px is None else np.asarray(fitted_px, dtype=np.float64)
     runs = [_reidentify(calibration, setup, detections, targets, calibrate, factor, gate_px,
-                        min_glints, rounds) for factor in (CROWDED_RMS, 0.0)]
+                        min_glints, rounds, fitted) for factor in (CROWDED_RMS, 0.0)]
     rms = [float(c.quality.get("rms_px", np.inf)) for c in runs]
     return runs[int(np.argmin(np.where(np.isfinite(rms), rms, np.inf)))]
 
 
 def _reidentify(calibration, setup, detections, targets, calibrate, factor, gate_px,
-                min_glints, rounds):
+                min_glints, rounds, fitted):
     """:func:`reidentify_on_conic`'s rounds with the crowded glints' exclusion at ``factor``
     times the error of each prediction (0: none): the RMS, and once the glints of the last fit
     are known, its prediction's standard error (:func:`prediction_sd_px`) in quadrature."""
-    cal, previous, last, fitted = calibration, None, np.inf, None
+    cal, previous, last = calibration, None, np.inf
     for _ in range(rounds):
         rms = float(cal.quality.get("rms_px", np.nan))
         crowded = factor * rms if factor > 0 and np.isfinite(rms) else 0.0
