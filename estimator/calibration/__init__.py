@@ -15,7 +15,7 @@ from .checks import (
     calibration_warnings,
 )
 from .conic import (CROWDED_RMS, IDENTIFY_ROUNDS, Q_BOUNDS, calibrate_joint_conic,
-                    identify_on_conic, reidentify_on_conic)
+                    identify_on_conic, prediction_sd_px, reidentify_on_conic)
 from .lighting import (
     CORNEA_RADIUS_BOUNDS_M,
     CORNEA_RADIUS_INIT_M,
@@ -42,6 +42,7 @@ __all__ = [
     "calibrate_lighting_joint", "calibrate_joint", "MAPPING_TERMS", "RANK_RTOL", "GazeMapping",
     "fit_gaze_mapping", "distance_reading", "ORBIT_RADIUS_BOUNDS_M", "OrbitFit",
     "orbit_law_of_sines", "orbit_sphere_fit", "Calibration", "Q_BOUNDS", "calibrate_joint_conic",
-    "IDENTIFY_ROUNDS", "CROWDED_RMS", "identify_on_conic", "reidentify_on_conic", "FRESNEL_MODELS", "GlintFlux", "fit_glint_flux",
+    "IDENTIFY_ROUNDS", "CROWDED_RMS", "identify_on_conic", "prediction_sd_px",
+    "reidentify_on_conic", "FRESNEL_MODELS", "GlintFlux", "fit_glint_flux",
     "model_flux",
 ]

@@ -162,7 +162,14 @@ IDENTIFY_ROUNDS = 10
 #: the crowded glints out (2 x 2.0 px = 4.0 px, then 2 x 0.63 px, ...) takes every identity
 #: right in two rounds: Q = -0.451, r_c = 7.83 mm, 0.22 px (true -0.45, 7.80 mm). The last
 #: rounds assign every prediction; the exclusion shrinks with the RMS, so on a sphere-like
-#: cornea it leaves nothing out.
+#: cornea it leaves nothing out. The RMS is the error of the glints fitted, not of those
+#: extrapolated to: from the second round the radius is CROWDED_RMS times the RMS and each
+#: prediction's standard error (:func:`prediction_sd_px`) in quadrature. With the moving lids
+#: (Q = -0.45) the first such fit, 179 glints of lights 0-19 at 0.30 px, predicts the edge
+#: lights 20-39 up to 6.1 px off; a radius of the RMS alone (3.6 px) let in 62 identities one
+#: light off, which ended at Q = -0.493, r_c = 8.50 mm, 0.66 px (the plain rounds' answer);
+#: with the standard error (radii up to 8.9 px) every identity is right: Q = -0.451,
+#: r_c = 7.85 mm, 0.24 px (the labels' identities: -0.451, 7.84 mm, 0.24 px).
 CROWDED_RMS = 2.0
 #: Where leaving the crowded glints out keeps fewer than 4 frames with enough glints (a first
 #: calibration many pixels off: 7.1 px RMS with the moving lids' clutter at Q = -0.45, whose
@@ -172,7 +179,7 @@ MIN_CROWDED_PX = 0.5
 
 
 def identify_on_conic(calibration, setup, detections, targets_m, *, gate_px: float,
-                      crowded_px: float = 0.0) -> np.ndarray:
+                      crowded_px=0.0) -> np.ndarray:
     """Identify the glints of calibration frames on a calibrated conic cornea.
 
     Each frame's eye fixates its target: the cornea centre is c_e + r_co (T - c_e)/|T - c_e|,
@@ -180,8 +187,8 @@ def identify_on_conic(calibration, setup, detections, targets_m, *, gate_px: flo
     (exact reflection, the cap ending ``setup.eye.limbus_depth_m`` behind the apex, inside the
     image), and the frame's detections are assigned to the predictions by the optimal
     assignment of their distances (scipy's ``linear_sum_assignment``), pairs further apart
-    than ``gate_px`` left unmatched. Predictions within ``crowded_px`` of another prediction
-    of their frame take no detection (0: every prediction does).
+    than ``gate_px`` left unmatched. A prediction closer than its ``crowded_px`` to another
+    prediction of its frame takes no detection (0: every prediction does).
 
     Parameters
     ----------
@@ -193,7 +200,8 @@ def identify_on_conic(calibration, setup, detections, targets_m, *, gate_px: flo
         Every detection of each frame (px).
     targets_m : (m, 3) float
     gate_px : float
-    crowded_px : float
+    crowded_px : float or (m, n) float
+        One radius (px) for every prediction, or each prediction's own.
 
     Returns
     -------
@@ -211,15 +219,20 @@ def identify_on_conic(calibration, setup, detections, targets_m, *, gate_px: flo
     pred, visible = project_glints_conic(setup.camera, ce + (r_co + r_c) * u, u, r_c,
                                          calibration.cornea_asphericity, lights,
                                          limbus_depth_m=setup.eye.limbus_depth_m)
+    crowded = np.asarray(crowded_px, dtype=np.float64)
+    if crowded.ndim and crowded.shape != pred.shape[:2]:
+        raise ValueError(f"crowded_px must be a number or have shape {pred.shape[:2]}, got "
+                         f"{crowded.shape}")
+    crowded = np.broadcast_to(crowded, pred.shape[:2])
     out = np.full(pred.shape, np.nan)
     for i, det in enumerate(detections):
         det = np.asarray(det, dtype=np.float64).reshape(-1, 2)
         idx = np.flatnonzero(visible[i])
-        if crowded_px > 0 and idx.size > 1:
+        if (crowded[i, idx] > 0).any() and idx.size > 1:
             p = pred[i, idx]
             apart = np.linalg.norm(p[:, None] - p[None], axis=-1)
             np.fill_diagonal(apart, np.inf)
-            idx = idx[apart.min(axis=1) >= crowded_px]
+            idx = idx[apart.min(axis=1) >= crowded[i, idx]]
         if det.shape[0] == 0 or idx.size == 0:
             continue
         dist = np.linalg.norm(pred[i, idx, None, :] - det[None], axis=-1)
@@ -230,17 +243,16 @@ def identify_on_conic(calibration, setup, detections, targets_m, *, gate_px: flo
 
 
 def reidentify_on_conic(calibration, setup, detections, targets_m, calibrate, *,
-                        gate_px: float, min_glints: int, rounds: int = IDENTIFY_ROUNDS):
+                        gate_px: float, min_glints: int, rounds: int = IDENTIFY_ROUNDS,
+                        fitted_px=None):
     """A conic calibration made again from the frames' glints identified on it, until the
     identities no longer change: first leaving out the glints crowded within
-    :data:`CROWDED_RMS` times the calibration's RMS (px) of another, then with every glint
-    (:func:`identify_on_conic`); and the same rounds with every glint from the start. The
-    calibration of lower RMS is returned. The exclusion trusts the RMS of the glints it fits
-    as the error of those it leaves out; where a few frames' glints fit well and extrapolate
-    badly to the others (the moving lids' calibration at Q = -0.45: 178 glints at 0.30 px,
-    then a chain shifted by one light in other frames, 0.76 px in the end) the plain rounds
-    give the better calibration (0.67 px), and elsewhere the excluding ones (0.22 against
-    0.66 px with the lids still).
+    :data:`CROWDED_RMS` times their predicted error (px: the calibration's RMS and, from the
+    second round, the prediction's standard error from the glints last fitted,
+    :func:`prediction_sd_px`) of another, then with every glint (:func:`identify_on_conic`);
+    and the same rounds with every glint from the start. The calibration of lower RMS is
+    returned: on the quick study's frames at Q = -0.45 the excluding rounds' (0.22-0.24 px,
+    every identity right, lids off, still and moving) against the plain rounds' 0.66 px.
 
     Parameters
     ----------
@@ -255,22 +267,28 @@ def reidentify_on_conic(calibration, setup, detections, targets_m, calibrate, *,
         (fewer: the last calibration is kept).
     rounds : int
         Most recalibrations.
+    fitted_px : (m, n, 2) float, optional
+        The glints ``calibration`` was fitted to (NaN: none), rows as ``targets_m``: its
+        predictions' standard errors then widen the first round's exclusion too. Without
+        them the first round trusts its RMS.
 
     Returns
     -------
     Calibration
     """
     targets = np.asarray(targets_m, dtype=np.float64)
+    fitted = None if fitted_px is None else np.asarray(fitted_px, dtype=np.float64)
     runs = [_reidentify(calibration, setup, detections, targets, calibrate, factor, gate_px,
-                        min_glints, rounds) for factor in (CROWDED_RMS, 0.0)]
+                        min_glints, rounds, fitted) for factor in (CROWDED_RMS, 0.0)]
     rms = [float(c.quality.get("rms_px", np.inf)) for c in runs]
     return runs[int(np.argmin(np.where(np.isfinite(rms), rms, np.inf)))]
 
 
 def _reidentify(calibration, setup, detections, targets, calibrate, factor, gate_px,
-                min_glints, rounds):
+                min_glints, rounds, fitted):
     """:func:`reidentify_on_conic`'s rounds with the crowded glints' exclusion at ``factor``
-    times the RMS (0: none)."""
+    times the error of each prediction (0: none): the RMS, and once the glints of the last fit
+    are known, its prediction's standard error (:func:`prediction_sd_px`) in quadrature."""
     cal, previous, last = calibration, None, np.inf
     for _ in range(rounds):
         rms = float(cal.quality.get("rms_px", np.nan))
@@ -280,23 +298,81 @@ def _reidentify(calibration, setup, detections, targets, calibrate, factor, gate
             crowded = min(last, max(crowded, last / 2.0))
         if crowded < MIN_CROWDED_PX:
             crowded = 0.0
+        spread = 0.0
+        if factor > 0 and fitted is not None:
+            spread = factor * prediction_sd_px(cal, setup, fitted, targets)
         while True:
+            radius = np.hypot(crowded, spread)
+            radius = np.where(radius >= MIN_CROWDED_PX, radius, 0.0)
             g = identify_on_conic(cal, setup, detections, targets, gate_px=gate_px,
-                                  crowded_px=crowded)
+                                  crowded_px=radius)
             enough = np.isfinite(g[..., 0]).sum(axis=1) >= min_glints
-            if enough.sum() >= 4 or crowded < MIN_CROWDED_PX:
+            if enough.sum() >= 4 or not radius.any():
                 break
             # Too few frames keep enough glints (a first calibration many pixels off leaves
             # most out): a narrower exclusion, down to none.
             crowded = crowded / 2.0 if crowded / 2.0 >= MIN_CROWDED_PX else 0.0
+            spread = spread / 2.0
         last = crowded
         same = previous is not None and np.array_equal(np.isfinite(g), np.isfinite(previous)) \
             and np.allclose(g, previous, equal_nan=True)
         if enough.sum() < 4 or same:
-            if crowded > 0:  # settled without the crowded glints: now all of them
+            if radius.any():  # settled without the crowded glints: now all of them
                 factor, previous = 0.0, g
                 continue
             break
         previous = g
+        fitted = np.where(enough[:, None, None], g, np.nan)
         cal = calibrate(g[enough], targets[enough])
     return cal
+
+
+def prediction_sd_px(calibration, setup, glints_px, targets_m) -> np.ndarray:
+    """Standard error of each glint a conic calibration predicts, from the glints it was fitted
+    to: the fit's covariance (RMS^2 / 2 per axis) (J^T J)^-1, J the Jacobian of those glints
+    in the fit's 12 unknowns (:class:`_ConicJoint` about the calibrated lights), carried to
+    every light's glint of every frame.
+
+    Glints far from those fitted (an edge the fit left out) are extrapolated: on the moving
+    lids' calibration at Q = -0.45 (320 x 240) a fit of 179 glints of lights 0-19 at 0.30 px
+    RMS predicts, in the frame fixating the top centre target, those lights within 1.1 px
+    (this gives 0.06-0.8 px) and the crowded edge lights 20-39 1.4-6.1 px off (0.9-3.8 px),
+    steadily worse toward the edge; its RMS says 0.30 px for all.
+
+    Parameters
+    ----------
+    calibration : Calibration
+        With ``cornea_model == "conic"`` and ``quality["rms_px"]``.
+    setup : Setup
+    glints_px : (m, n, 2) float
+        The glints the calibration was fitted to, NaN where none.
+    targets_m : (m, 3) float
+
+    Returns
+    -------
+    (m, n) float
+        sqrt of the trace of each predicted glint's 2 x 2 covariance (px); inf where the
+        reflection does not converge near the calibration.
+    """
+    lights = calibration.lights_world_m(setup.lights_world_m)
+    glints = np.asarray(glints_px, dtype=np.float64)
+    if glints.ndim != 3 or glints.shape[1:] != (lights.shape[0], 2):
+        raise ValueError(f"glints_px must have shape (m, {lights.shape[0]}, 2), got "
+                         f"{glints.shape}")
+    T = as_points(targets_m, "targets_m").reshape(-1, 3)
+    mask = np.isfinite(glints).all(axis=-1)
+    joint = _ConicJoint(setup.camera, lights, np.where(mask[..., None], glints, 0.0), mask, T)
+    x = np.concatenate([[calibration.cornea_radius_m], np.zeros(6), calibration.eye_center_m,
+                        [calibration.orbit_radius_m], [calibration.cornea_asphericity]])
+    p = x.size
+    g = joint.glints_at(x[None] + np.concatenate([np.diag(joint.h), -np.diag(joint.h)]))
+    D = np.moveaxis((g[:p] - g[p:]) / (2 * joint.h[:, None, None, None]), 0, -1)
+    fin = np.isfinite(D).all(axis=(-2, -1))
+    D = np.where(fin[..., None, None], D, 0.0)  # (m, n, 2, p)
+    A = D[mask & fin].reshape(-1, p)
+    scale = np.linalg.norm(A, axis=0)
+    scale = np.where(scale > 0, scale, 1.0)  # conditioning: lengths (m) against Q
+    rms = float(calibration.quality.get("rms_px", np.nan))
+    cov = np.linalg.pinv((A / scale).T @ (A / scale)) / np.outer(scale, scale) * rms ** 2 / 2
+    var = np.einsum("mnap,pq,mnaq->mn", D, cov, D)
+    return np.where(fin, np.sqrt(np.maximum(var, 0.0)), np.inf)

@@ -248,3 +248,55 @@ def test_reidentification_undoes_a_chain_of_edge_glints_shifted_by_one_light(set
                               gate_px=MatchParams().gate_px, min_glints=5)
     assert abs(cal.cornea_asphericity - q) < Q_TOL
     assert cal.quality["rms_px"] < 1e-3  # px: exact glints, all identities right
+
+
+def test_reidentification_trusts_an_extrapolated_prediction_only_as_far_as_its_error(setup):
+    """A calibration fitted to the well-separated glints (>= 7 px from any other: lights 0-13
+    at 320 x 240, Q = -0.45, 0.3 px of noise) extrapolates to the crowded edge lights several
+    times its RMS off (estimator.calibration.conic, CROWDED_RMS; the moving lids' renders).
+    Its prediction's standard error (prediction_sd_px) accounts for that error; with it, one
+    round of re-identification leaves the edge glints out until they are known and gets every
+    identity it assigns right, and with them Q. The RMS alone (0.4 px, a 0.8 px radius) lets in
+    shifted chains: 118 wrong identities and a wrong Q after the same round."""
+    from estimator.banding import scaled_setup
+    from estimator.calibration import prediction_sd_px, reidentify_on_conic
+    from estimator.geometry import project_glints_conic
+    from estimator.matching import MatchParams
+
+    q, noise_px = -0.45, 0.3
+    s = scaled_setup(_conic_setup(setup, q), 2)
+    targets = screen_targets("calib:5x5", s)
+    obs = simulate_glints(s, targets, noise_px=noise_px, noise_model="gaussian", rng=0)
+    g = np.where(obs.visible[..., None], obs.glints_px, np.nan)
+    true = np.where(obs.visible[..., None], obs.glints_true_px, np.nan)
+    apart = np.linalg.norm(true[:, :, None] - true[:, None], axis=-1)
+    n = g.shape[1]
+    apart[:, np.arange(n), np.arange(n)] = np.inf
+    apart = np.where(np.isnan(apart), np.inf, apart).min(axis=2)
+    fitted = np.where((apart >= 7.0)[..., None], g, np.nan)
+    frames = np.isfinite(fitted[..., 0]).sum(axis=1) >= 5
+    fitted[~frames] = np.nan
+
+    def calibrate(gg, tt):
+        return calibrate_from_glints(s, gg, tt, cornea_model="conic")
+
+    first = calibrate(fitted[frames], targets[frames])
+    rms = first.quality["rms_px"]
+    sd = prediction_sd_px(first, s, fitted, targets)
+    ce, r_co, r_c = first.eye_center_m, first.orbit_radius_m, first.cornea_radius_m
+    u = (targets - ce) / np.linalg.norm(targets - ce, axis=1, keepdims=True)
+    pred, _ = project_glints_conic(s.camera, ce + (r_co + r_c) * u, u, r_c,
+                                   first.cornea_asphericity, first.lights_world_m(s.lights_world_m))
+    seen = np.isfinite(true[..., 0])
+    err = np.linalg.norm(pred - true, axis=-1)[seen]
+    assert err.max() > 5 * rms  # px: extrapolated to the edge lights
+    # 2D errors over their standard errors: a chi with 2 degrees of freedom, plus the noise
+    # the prediction is compared without; 4 is past its 99.9th percentile (3.7).
+    assert np.max(err / np.hypot(sd[seen], noise_px)) < 4.0
+
+    detections = [frame[np.isfinite(frame[:, 0])] for frame in g]
+    cal = reidentify_on_conic(first, s, detections, targets, calibrate,
+                              gate_px=MatchParams().gate_px, min_glints=5, rounds=1,
+                              fitted_px=fitted)
+    assert abs(cal.cornea_asphericity - q) < 0.005
+    assert cal.quality["rms_px"] < 1.5 * noise_px * np.sqrt(2)  # px: no wrong identity left
