@@ -168,8 +168,7 @@ def flagged(calibration, camera, lights_world_m, sample: GazeSample, g, flux,
                     glint_flux.fresnel == "dielectric", CORNEA_REFRACTIVE_INDEX, floor,
                     RESIDUAL_FLAG * noise if np.isfinite(noise) else -1.0, out)
         return out
-    # The sample's glints are copies of detections: find their rows (k x m compares).
-    rows = (g[:, None, 0] == used[None, :, 0]).argmax(axis=0)
+    rows = _same_points(g, used).argmax(axis=0)
     expected = glint_flux.expected(camera, sample.cornea_center_m, cornea_radius_m,
                                    lights_world_m, sample.light_index, used)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -182,10 +181,15 @@ def flagged(calibration, camera, lights_world_m, sample: GazeSample, g, flux,
     return low
 
 
+def _same_points(g, points) -> np.ndarray:
+    """(m, k) bool: which of the band's detections ``g`` (m, 2) each of ``points`` (k, 2) is
+    (a sample's glints are copies of detections, so equal to the last bit)."""
+    return (g[:, None, 0] == points[None, :, 0]) & (g[:, None, 1] == points[None, :, 1])
+
+
 def kept_detections(g, cut) -> np.ndarray:
     """(m,) bool: the band's detections ``g`` (m, 2) that are not among the flagged glints
-    ``cut`` (c, 2) (a sample's glints are copies of detections)."""
+    ``cut`` (c, 2)."""
     if cut.shape[0] == 0:
         return np.ones(g.shape[0], dtype=bool)
-    same = (g[:, None, 0] == cut[None, :, 0]) & (g[:, None, 1] == cut[None, :, 1])
-    return ~same.any(axis=1)
+    return ~_same_points(g, cut).any(axis=1)
