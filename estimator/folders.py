@@ -385,8 +385,7 @@ def tracking_calibration(folder, calibration, out_csv, *, method: str = "polynom
         raise TrackerInputError(f"{source}: no eye centre and orbit radius, which --method "
                                 "geometric needs")
     flux = calibration.glint_flux
-    if flag_cut_glints and (flux is None or (n_lights is not None
-                                             and flux.log_power.size != n_lights)):
+    if flag_cut_glints and not calibration.flags_cut_glints(n_lights):
         have = "no glint_flux" if flux is None else \
             f"glint_flux of {flux.log_power.size} lights, not the rig's {n_lights}"
         raise TrackerInputError(f"{source}: {have}, which --flag-cut-glints needs (calibrate "

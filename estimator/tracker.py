@@ -146,8 +146,7 @@ class Tracker:
                              f"(has {sorted(calibration.mappings)})")
         self.setup, self.calibration, self.method, self.mapping = setup, calibration, method, mapping
         self.detection = detection
-        gf = calibration.glint_flux
-        fluxed = gf is not None and gf.log_power.size == setup.lights.count
+        fluxed = calibration.flags_cut_glints(setup.lights.count)
         if flag_cut_glints and not fluxed:
             raise ValueError(f"flag_cut_glints needs a calibration with glint_flux for the "
                              f"{setup.lights.count} lights (recalibrate)")

@@ -179,7 +179,7 @@ MIN_CROWDED_PX = 0.5
 
 
 def identify_on_conic(calibration, setup, detections, targets_m, *, gate_px: float,
-                      crowded_px=0.0) -> np.ndarray:
+                      crowded_px: "float | np.ndarray" = 0.0) -> np.ndarray:
     """Identify the glints of calibration frames on a calibrated conic cornea.
 
     Each frame's eye fixates its target: the cornea centre is c_e + r_co (T - c_e)/|T - c_e|,

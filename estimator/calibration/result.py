@@ -144,6 +144,12 @@ class Calibration:
     def has_orbit(self) -> bool:
         return bool(np.isfinite(self.eye_center_m).all() and np.isfinite(self.orbit_radius_m))
 
+    def flags_cut_glints(self, n_lights: int | None = None) -> bool:
+        """Whether it holds the glint flux the tracker's cut-glint flag needs: a
+        :class:`GlintFlux` for ``n_lights`` lights (any count when None)."""
+        return self.glint_flux is not None and (
+            n_lights is None or self.glint_flux.log_power.size == n_lights)
+
     def lights_world_m(self, nominal_lights_m) -> np.ndarray:
         """(n, 3) calibrated positions of the nominal lights."""
         return corrected_lights(self.lighting_correction, nominal_lights_m)
