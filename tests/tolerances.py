@@ -20,6 +20,13 @@ class Tol:
     solver_agreement_rad: float = 1e-12
     #: Pixels: round trips through the pinhole model in float64.
     pixel_roundtrip_px: float = 1e-9
+    #: One band's glints fitted twice from different starts (m of cornea centre): each fit
+    #: stops within its solver's stopping error of the same minimum. The numpy LM (the base
+    #: install, no Numba) takes a last Gauss-Newton step below 1e-7 m and stops, which leaves
+    #: <= 4e-10 m (estimator.cornea.solve._GN_STOP, measured there); the compiled small fit
+    #: stops at 1e-12 m. Measured: 1.7e-14 m (numpy LM), 9e-18 m (compiled), against ~1e-6 m
+    #: that a 0.6 px shift of one of eight glints moves the centre.
+    refit_center_m: float = 1e-9
 
 
 TOL = Tol()
