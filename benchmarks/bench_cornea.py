@@ -33,13 +33,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from estimator.scene import load_scene  # noqa: E402
 from scet_render.render import BandedRenderer  # noqa: E402
 from scet_render.render.layout import SceneOptions  # noqa: E402
+from scet_render.render.regions import REGIONS, region_labels  # noqa: E402
 from scet_render.simulate import ground_truth_glints  # noqa: E402
 from tests.scet_render.centroids import glint_centroids  # noqa: E402
 
 POSES = [(0.0, 0.0), (0.2, -0.12), (-0.15, 0.1), (0.1, 0.15)]
 HALF_PX = 4
 MIN_SPACING_PX = 7.0
-REGIONS = ("iris", "pupil", "sclera", "skin")
 
 
 def centroids(img, pred_px, all_px):
@@ -53,45 +53,6 @@ def isolated(g, vis):
     d = np.linalg.norm(gg[:, None] - gg[None], axis=-1)
     np.fill_diagonal(d, np.inf)
     return vis & (d.min(axis=1) > MIN_SPACING_PX)
-
-
-def region_labels(renderer, yaw_rad, pitch_rad) -> np.ndarray:
-    """(H, W) index into REGIONS (-1: other) of what each pixel centre sees at an eye pose:
-    through the cornea by one refraction, past the sclera sphere's cap inside the limbus (cut
-    away by its opacity mask, which ``ray_intersect`` does not see)."""
-    mi = renderer.mi
-    import drjit as dr
-
-    from estimator.eye import eye_rotation_matrix
-
-    es, cam = renderer.eye_scene, renderer.setup.camera
-    es.set_pose(yaw_rad, pitch_rad)
-    W, H = cam.width_px, cam.height_px
-    idx = np.arange(W * H)
-    film = mi.Point2f(mi.Float((idx % W + 0.5) / W), mi.Float((idx // W + 0.5) / H))
-    ray, _ = es.sensor.sample_ray(0.0, 0.5, film, mi.Point2f(0.5, 0.5))
-    si = es.scene.ray_intersect(ray)
-    shapes = {s.id(): s for s in es.scene.shapes()}
-    on_cornea = si.shape == mi.ShapePtr(shapes["cornea"])
-    _, cos_t, _, eta_ti = mi.fresnel(mi.Frame3f.cos_theta(si.wi),
-                                     renderer.setup.eye.refractive_index)
-    inner = si.spawn_ray(si.to_world(mi.refract(si.wi, cos_t, eta_ti)))
-    si2 = es.scene.ray_intersect(inner, on_cornea)
-    gaze = eye_rotation_matrix(yaw_rad, pitch_rad) @ np.array([0.0, 0.0, -1.0])
-    lay = es.layout
-    cos_cap = lay.limbus_plane_m / np.hypot(lay.limbus_plane_m, lay.limbus_radius_m)
-    sclera = mi.ShapePtr(shapes["sclera"])
-    for _ in range(2):  # the cap is crossed at most twice
-        p = si2.p
-        cos_p = dr.dot(dr.normalize(p), mi.Vector3f(*(float(v) for v in gaze)))
-        cut = on_cornea & (si2.shape == sclera) & (cos_p > cos_cap)
-        si2 = dr.select(cut, es.scene.ray_intersect(si2.spawn_ray(inner.d), cut), si2)
-    label = np.full(W * H, -1)
-    for k, name in enumerate(REGIONS):
-        ptr = mi.ShapePtr(shapes[name])
-        hit = dr.select(on_cornea, si2.shape == ptr, si.shape == ptr)
-        label[np.array(hit, dtype=bool)] = k
-    return label.reshape(H, W)
 
 
 def glint_errors(renderer, setup, seed):

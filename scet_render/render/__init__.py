@@ -1,6 +1,7 @@
 """Physically based renders with Mitsuba 3: the variant (``backend``), the eye scene
 (``scene``, ``meshes``, ``export``), lids that follow the eye and their occlusion of glints
-(``lids``, ``occlusion``), the rolling-shutter strobe renderer (``rolling_shutter``)
+(``lids``, ``occlusion``), the rolling-shutter strobe renderer (``rolling_shutter``),
+which part of the eye each pixel sees (``regions``)
 and the OV5647 sensor model (``sensor``). Mitsuba is imported lazily.
 """
 
@@ -52,6 +53,7 @@ from .lids import (
 )
 from .meshes import cornea_mesh, cornea_opacity, eye_part_transforms, eyelid_meshes, sclera_opacity, skin_mesh
 from .occlusion import OCCLUDER_NAMES, SPOT_SAMPLES, GlintOcclusion, LidOccluder, occluder_names
+from .regions import REGIONS, region_labels
 from .rolling_shutter import (
     SPEED_SAMPLES_PER_PERIOD,
     BandedRenderer,
@@ -77,6 +79,7 @@ from .sensor import (
 )
 
 __all__ = [
+    "REGIONS", "region_labels",
     "LLVM_MIN_VERSION", "SUPPORTED_VARIANTS", "VARIANT_ENV", "LLVM_ENV", "DEFAULT_LLVM_GLOBS",
     "VariantChoice", "BackendUnavailableError", "llvm_version", "find_libllvm", "gpu_available", "choose_variant",
     "activate", "is_jit_variant", "export_mitsuba", "DEFAULT_LIGHT_RADIANCE",

@@ -1,6 +1,7 @@
 """The cornea BSDF (scet_render.render.cornea_bsdf): the physics of Mitsuba's dielectric,
 reflection sampled with a fixed probability from outside."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -167,3 +168,29 @@ def test_default_cornea_moves_without_recompiling(mi, paper):
     f = _saccade_frame(small, traj)
     renderer.render_frame(traj, f)
     assert_frame_compiles_nothing(renderer, traj, f)
+
+
+def test_default_depth_renders_the_iris_through_the_cornea_converged(mi, paper):
+    """The iris is seen through the refracting cornea, and its ambient light takes more path
+    vertices than the skin's: the default max_depth renders every region's mean ambient
+    radiance as a depth of 64 does (within 1.5 %: 3 standard errors of the difference at
+    160x120, 16 spp, 3 seeds), where a depth of 6 renders the iris darker by more than 4 %
+    (bench_depth at 640x480: 7.1 %, 16: 0.3 %)."""
+    from scet_render.render import REGIONS, BandedRenderer, region_labels
+    from tests.scet_render.test_rolling_shutter import _small
+
+    small = _small(paper)
+    yaw, pitch = 0.2, -0.12
+
+    def means(depth):
+        rend = BandedRenderer(small, spp=16, seed=1,
+                              options=dataclasses.replace(SceneOptions(), max_depth=depth))
+        labels = region_labels(rend, yaw, pitch)
+        amb = [rend.render_rows(yaw, pitch, seed=30 + s)[1] for s in range(3)]
+        return np.array([[a[labels == k].mean() for k in range(len(REGIONS))] for a in amb])
+
+    assert SceneOptions().max_depth < 64
+    default, deep, shallow = (means(d).mean(axis=0)
+                              for d in (SceneOptions().max_depth, 64, 6))
+    np.testing.assert_allclose(default, deep, rtol=0.015)
+    assert shallow[REGIONS.index("iris")] < 0.96 * deep[REGIONS.index("iris")]
