@@ -11,7 +11,8 @@ the prior the next band gets all come from the remaining glints, so a sample tha
 prior is fitted again with its prior, and one left with too few glints of its own can still
 take it. The check runs compiled where Numba is (:data:`estimator.matching.kernels.ENABLED`):
 one loop over the band's glints (:func:`log_ratios`; the numpy model of
-:func:`estimator.calibration.model_flux` otherwise).
+:func:`estimator.calibration.model_flux` otherwise). A conic calibration's check uses the
+conic's flux and glints (:func:`_flagged_conic`, numpy).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 
 import estimator.matching.kernels as match_kernels
 
+from .cornea import conic_glints
 from .eye import CORNEA_REFRACTIVE_INDEX
 from .geometry import camera_arrays, glints_one_pose
 from .geometry.compiled import glints_kernel
@@ -160,6 +162,9 @@ def flagged(calibration, camera, lights_world_m, sample: GazeSample, g, flux,
     glint_flux, cornea_radius_m = calibration.glint_flux, calibration.cornea_radius_m
     floor = -FLUX_FLAG_SD * glint_flux.log_sd
     noise = glint_flux.noise_px
+    if calibration.conic:
+        return _flagged_conic(calibration, camera, lights_world_m, sample, g, flux, floor,
+                              noise)
     if match_kernels.ENABLED:
         out = np.empty(used.shape[0], dtype=np.bool_)
         flag_kernel(*(camera_arrays(camera) if arrays is None else arrays),
@@ -178,6 +183,28 @@ def flagged(calibration, camera, lights_world_m, sample: GazeSample, g, flux,
                                   lights_world_m[sample.light_index[low]])
         off = np.hypot(pred[:, 0] - used[low, 0], pred[:, 1] - used[low, 1])
         low[low] = off > RESIDUAL_FLAG * noise
+    return low
+
+
+def _flagged_conic(calibration, camera, lights_world_m, sample: GazeSample, g, flux, floor,
+                   noise) -> np.ndarray:
+    """:func:`flagged` on a conic calibration's cornea: the conic's expected flux
+    (:func:`estimator.calibration.model_flux` with Q and the eye centre) and its exact glints
+    (:func:`estimator.cornea.conic_glints`); numpy only (the conic tracker's fits are)."""
+    used, li = sample.glints_px, sample.light_index
+    rows = _same_points(g, used).argmax(axis=0)
+    r_c, q, ce = calibration.cornea_radius_m, calibration.cornea_asphericity, \
+        calibration.eye_center_m
+    expected = calibration.glint_flux.expected(camera, sample.cornea_center_m, r_c,
+                                               lights_world_m, li, used, asphericity=q,
+                                               eye_center_m=ce)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        low = np.log(flux[rows] / expected) < floor
+    if low.any() and np.isfinite(noise):
+        pred = conic_glints(camera, sample.cornea_center_m[None], ce, r_c, q,
+                            lights_world_m[li[low]])[0]
+        off = np.hypot(pred[:, 0] - used[low, 0], pred[:, 1] - used[low, 1])
+        low[low] = off > RESIDUAL_FLAG * noise  # NaN (no glint there): False
     return low
 
 

@@ -39,6 +39,7 @@ from .calibration import (
     calibration_warnings,
     fit_gaze_mapping,
     fit_glint_flux,
+    identify_on_conic,
     reidentify_on_conic,
 )
 from .capture import is_capture_folder
@@ -69,6 +70,7 @@ log = logging.getLogger(__name__)
 
 __all__ = ["FolderTiming", "timing_document", "read_timing", "frame_path", "read_frame",
            "read_targets", "iter_folder", "CalibrationGlints", "SINGLE_PULSE_MIN_WEIGHT",
+           "glints_on_conic", "calibrate_glint_flux",
            "MAKE_CALIBRATION_FRAMES", "check_single_pulse", "calibration_glints",
            "CALIBRATION_MAPPINGS", "fit_supported_mappings", "calibrate_from_folder",
            "calibrate_from_glints",
@@ -119,7 +121,7 @@ class CalibrationGlints:
     glints_px: np.ndarray
     targets_m: np.ndarray
     frames: tuple
-    detected: tuple = ()  # of (frame, target (3,), detections (k, 2))
+    detected: tuple = ()  # of (frame, target (3,), detections (k, 2), their flux (k,))
     flux: np.ndarray | None = None  # (m, n) the identified glints' flux (DN), NaN where missing
 
 
@@ -183,7 +185,8 @@ def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
             log.warning("calibration frame %d left out: %s", f, exc)
             continue
         det = det.select(~det.has(NO_BAND))
-        detected.append((f, np.asarray(targets[f], dtype=np.float64), det.glints_px))
+        detected.append((f, np.asarray(targets[f], dtype=np.float64), det.glints_px,
+                         det.intensity))
         prior = np.array(cal_setup.eye.angles_toward(targets[f][None])).reshape(2)
         match = matcher.match(det.glints_px, prior_angles_rad=prior)
         if not match.ok:
@@ -215,41 +218,69 @@ def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere")
     mappings from the fitted cornea centres: ``eq1_<m>`` (Eq. (1)) and ``quadratic_<m>``
     (minimum-norm where the orbit makes it rank deficient), m the number of frames used.
     ``cornea_model="conic"`` calibrates the conic constant Q with the rest
-    (:func:`estimator.calibration.calibrate_joint_conic`) and records it in the file. A
-    spherical calibration also records each light's power for the glints' expected flux
-    (``glint_flux``, :func:`calibrate_glint_flux`: the tracker's check for glints cut by a lash).
+    (:func:`estimator.calibration.calibrate_joint_conic`) and records it in the file. The
+    calibration also records each light's power for the glints' expected flux
+    (``glint_flux``, :func:`calibrate_glint_flux`: the tracker's check for glints cut by a
+    lash), a conic's from the glints identified on the calibrated conic.
     """
     check_conic(cornea_model, 0.0)
     cal_setup, cg = calibration_glints(folder, setup)
     total = len(read_targets(folder))
     cal = calibrate_from_glints(cal_setup, cg.glints_px, cg.targets_m, frames_total=total,
                                 cornea_model=cornea_model)
-    if cornea_model == "sphere":
-        cal = replace(cal, glint_flux=calibrate_glint_flux(cal_setup, cal, cg))
+    glints, flux = cg.glints_px, cg.flux
     if cornea_model == "conic":
         # The spherical matcher's identities of oblique glints are wrong on a conic cornea:
         # identify every detected frame again on the calibrated conic, and recalibrate.
         cal = reidentify_on_conic(
-            cal, cal_setup, [d for _, _, d in cg.detected],
-            np.array([t for _, t, _ in cg.detected]),
+            cal, cal_setup, [d for _, _, d, _ in cg.detected],
+            np.array([t for _, t, _, _ in cg.detected]),
             lambda g, t: calibrate_from_glints(cal_setup, g, t, frames_total=total,
                                                cornea_model="conic"),
             gate_px=MatchParams().gate_px, min_glints=MIN_GLINTS)
-    return cal
+        glints, flux = glints_on_conic(cal, cal_setup, cg)
+    return replace(cal, glint_flux=calibrate_glint_flux(cal_setup, cal, glints, flux))
 
 
-def calibrate_glint_flux(setup: Setup, calibration: Calibration, cg: CalibrationGlints):
+def glints_on_conic(calibration: Calibration, setup: Setup, cg: CalibrationGlints):
+    """The calibration frames' glints (m, n, 2) identified on a conic calibration
+    (:func:`estimator.calibration.identify_on_conic`, every detected frame, no crowded glint
+    left out) and their flux (m, n) (None where the frames had no detections)."""
+    if not len(cg.detected):
+        return np.empty((0, setup.lights.count, 2)), None
+    glints = identify_on_conic(calibration, setup, [d for _, _, d, _ in cg.detected],
+                               np.array([t for _, t, _, _ in cg.detected]),
+                               gate_px=MatchParams().gate_px)
+    return glints, np.stack([_flux_of(g, d, fx) for g, (_, _, d, fx) in zip(glints, cg.detected)])
+
+
+def _flux_of(glints_px, detections, flux) -> np.ndarray:
+    """(n,) the flux of each identified glint (n, 2): that of the detection (k, 2) it is (the
+    identification copies detections, so equal to the last bit); NaN where none."""
+    out = np.full(glints_px.shape[0], np.nan)
+    if detections.shape[0]:
+        same = (glints_px[:, None, 0] == detections[None, :, 0]) & \
+            (glints_px[:, None, 1] == detections[None, :, 1])
+        hit = same.any(axis=1)
+        out[hit] = np.asarray(flux, dtype=np.float64)[same.argmax(axis=1)[hit]]
+    return out
+
+
+def calibrate_glint_flux(setup: Setup, calibration: Calibration, glints_px, flux):
     """Each light's power (:func:`estimator.calibration.fit_glint_flux`) from the calibration
-    frames' identified glints and flux, at the cornea centres the calibration fits them to;
-    None without fluxes. The model is the sphere's: a conic calibration has none."""
-    if cg.flux is None or not len(cg.flux):
+    frames' identified glints (m, n, 2) and their flux (m, n), at the cornea centres the
+    calibration fits them to (a conic's: on the conic, its axis from the calibrated eye
+    centre); None without fluxes."""
+    if flux is None or not len(flux):
         return None
-    mask = np.isfinite(cg.glints_px).all(axis=-1)
-    centers = fit_cornea_centers(setup, calibration, cg.glints_px, mask)
+    mask = np.isfinite(glints_px).all(axis=-1)
+    centers = fit_cornea_centers(setup, calibration, glints_px, mask)
     c = np.where(centers.ok[:, None], centers.center_m, np.nan)
+    conic = {"asphericity": calibration.cornea_asphericity,
+             "eye_center_m": calibration.eye_center_m} if calibration.conic else {}
     return fit_glint_flux(setup.camera, calibration.cornea_radius_m,
-                          calibration.lights_world_m(setup.lights_world_m), c, cg.glints_px,
-                          cg.flux, float(calibration.quality.get("rms_px", np.nan)))
+                          calibration.lights_world_m(setup.lights_world_m), c, glints_px,
+                          flux, float(calibration.quality.get("rms_px", np.nan)), **conic)
 
 
 def calibrate_from_glints(setup: Setup, glints_px, targets_m, *,

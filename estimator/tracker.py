@@ -128,7 +128,7 @@ class Tracker:
         (:meth:`_band`, :mod:`estimator.cut_glints`; README "Moving lids, blinks and
         lashes"). It needs the calibration's ``glint_flux`` for the rig's lights: ``True``
         refuses a calibration without it, ``None`` (the default) flags where the calibration
-        has it (a spherical calibration from images), ``False`` never flags.
+        has it (a calibration from images, spherical or conic), ``False`` never flags.
     """
 
     def __init__(self, setup: Setup, calibration: Calibration, method: str = "polynomial", *,

@@ -15,6 +15,20 @@ pinhole camera that reads radiance (the renderer's) sums a point source to E / �
 Ω_pixel ∝ cos³ φ (φ off the optical axis). So measured / (I_i model) is one constant per light:
 :class:`GlintFlux` holds log I_i, fitted as the median over calibration frames.
 
+A conic cornea (apex radius R, conic constant Q, its axis from the eye centre c_e through the
+cornea centre c; :mod:`estimator.geometry.conic`) is not one sphere: at the reflection point its
+principal radii are the sagittal R_s = sqrt(R² - Q h²) and the meridional R_t = R_s³ / R² (h the
+distance from the axis), and the plane of incidence is in general not a principal plane. The
+reflected wavefront's curvature then follows the generalised Coddington equation (Deschamps,
+Proc. IEEE 60, 1972): with the surface's 2 x 2 curvature matrix K in the basis (in the plane of
+incidence, across it) and P = diag(cos θ, 1),
+
+    Q_r = I / d_L + 2 cos θ P⁻¹ K P⁻¹,     E = I_i F(θ) / (d_L² det(I + d_C Q_r)),
+
+which for K = I / r_c is the sphere's formula above (:func:`conic_flux` below; a test holds it
+to the irradiance found by moving the camera across the reflected beam on the exact conic
+reflection).
+
 F is the unpolarised Fresnel reflectance of the tear film (n = 1.376) for a real cornea and the
 renderer's ``dielectric`` and ``conductor`` corneas (README, "The cornea"); ``fresnel="constant"``
 models a mirror of one reflectance (the renderer's conductor before issue 14 was scaled by F(0)
@@ -30,7 +44,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..checks import Doc
-from ..errors import InputError
 from ..eye import CORNEA_REFRACTIVE_INDEX
 
 FRESNEL_MODELS = ("dielectric", "constant")
@@ -53,25 +66,31 @@ def fresnel_reflectance(cos_i, n: float = CORNEA_REFRACTIVE_INDEX) -> np.ndarray
 
 
 def model_flux(camera, cornea_center_m, cornea_radius_m: float, lights_world_m, glints_px,
-               fresnel: str = "dielectric") -> np.ndarray:
+               fresnel: str = "dielectric", *, asphericity: float = 0.0,
+               eye_center_m=None) -> np.ndarray:
     """Expected flux of glints per unit light intensity (module docstring).
 
     Parameters
     ----------
     camera : Camera
     cornea_center_m : (3,) float
-        Fitted cornea centre (world).
+        Fitted cornea centre (world; on a conic, the apex's centre of curvature).
     cornea_radius_m : float
+        Radius (the apex radius R of a conic).
     lights_world_m : (k, 3) float
         The light of each glint.
     glints_px : (k, 2) float
-        Detected glint centroids: the glint point is where the pixel ray meets the sphere.
+        Detected glint centroids: the glint point is where the pixel ray meets the cornea.
     fresnel : {"dielectric", "constant"}
+    asphericity : float
+        Conic constant Q in (-1, 1]; 0: the sphere.
+    eye_center_m : (3,) float
+        The eye centre the conic's axis points from (needed where Q is not 0).
 
     Returns
     -------
     (k,) float
-        NaN where the ray misses the sphere.
+        NaN where the ray misses the cornea.
     """
     g = np.asarray(glints_px, dtype=np.float64).reshape(-1, 2)
     L = np.asarray(lights_world_m, dtype=np.float64).reshape(-1, 3)
@@ -79,6 +98,18 @@ def model_flux(camera, cornea_center_m, cornea_radius_m: float, lights_world_m, 
         raise ValueError(f"lights_world_m must have shape ({g.shape[0]}, 3), got {L.shape}")
     if fresnel not in FRESNEL_MODELS:
         raise ValueError(f"fresnel must be one of {FRESNEL_MODELS}, got {fresnel!r}")
+    if asphericity != 0.0:
+        if eye_center_m is None:
+            raise ValueError("a conic cornea's flux needs eye_center_m (its axis)")
+        xn = (g[:, 0] - camera.cx_px) / camera.fx_px
+        yn = (g[:, 1] - camera.cy_px) / camera.fy_px
+        q = 1.0 + xn * xn + yn * yn
+        d = (xn[:, None] * camera.rotation[0] + yn[:, None] * camera.rotation[1]
+             + camera.rotation[2]) / np.sqrt(q)[:, None]
+        e, cos_i = conic_flux(camera.position_m, d, cornea_center_m, eye_center_m,
+                              cornea_radius_m, asphericity, L)
+        f = fresnel_reflectance(cos_i) if fresnel == "dielectric" else 1.0
+        return f * e * q * np.sqrt(q)
     r = float(cornea_radius_m)
     C = camera.position_m
     xn = (g[:, 0] - camera.cx_px) / camera.fx_px
@@ -100,6 +131,89 @@ def model_flux(camera, cornea_center_m, cornea_radius_m: float, lights_world_m, 
     e = 1.0 / (d_l * d_l * (a + 2.0 * d_c / (r * cos_i)) * (a + 2.0 * d_c * cos_i / r))
     f = fresnel_reflectance(cos_i) if fresnel == "dielectric" else 1.0
     return f * e * q * np.sqrt(q)
+
+
+def _unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _across(n, v):
+    """(k, 3) unit vectors perpendicular to the unit normals ``n`` and to ``v``; where v is
+    along n (normal incidence, the apex) any perpendicular of n: every direction is then
+    equivalent for the flux."""
+    c = np.cross(n, v)
+    size = np.linalg.norm(c, axis=-1)
+    spare = np.where((np.abs(n[:, 0]) < 0.9)[:, None], [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    c = np.where((size > 1e-12)[:, None], c, np.cross(n, spare))
+    return _unit(c)
+
+
+def conic_flux(camera_position_m, ray_dirs, cornea_center_m, eye_center_m, cornea_radius_m,
+               asphericity, lights_world_m) -> tuple[np.ndarray, np.ndarray]:
+    """Irradiance per unit intensity at the camera of glints on a conic cornea, and the
+    incidence cosines (module docstring: the generalised Coddington equation).
+
+    Parameters
+    ----------
+    camera_position_m : (3,) float
+    ray_dirs : (k, 3) float
+        Unit directions of the glints' pixel rays (world).
+    cornea_center_m, eye_center_m : (3,) float
+        The apex's centre of curvature and the eye centre: the axis points from the second
+        through the first, the apex R beyond the centre.
+    cornea_radius_m, asphericity : float
+        Apex radius R and conic constant Q.
+    lights_world_m : (k, 3) float
+
+    Returns
+    -------
+    irradiance : (k,) float
+        E / I_i without Fresnel; NaN where the ray misses the conic.
+    cos_i : (k,) float
+    """
+    R, Q = float(cornea_radius_m), float(asphericity)
+    O = np.asarray(camera_position_m, dtype=np.float64).reshape(3)
+    d = np.asarray(ray_dirs, dtype=np.float64).reshape(-1, 3)
+    c = np.asarray(cornea_center_m, dtype=np.float64).reshape(3)
+    u = _unit(c - np.asarray(eye_center_m, dtype=np.float64).reshape(3))
+    w = O - (c + R * u)  # from the apex
+    # Depth z behind the apex along the ray, z = z0 + t dz; the conic r² + (1 + Q) z² - 2Rz = 0
+    # with r² = |w + t d|² - z² is a quadratic in t.
+    z0, dz = -(w @ u), -(d @ u)
+    a = 1.0 + Q * dz * dz
+    b = 2.0 * (d @ w + Q * z0 * dz - R * dz)
+    cc = w @ w + Q * z0 * z0 - 2.0 * R * z0
+    disc = b * b - 4.0 * a * cc
+    with np.errstate(invalid="ignore", divide="ignore"):
+        root = -0.5 * (b + np.copysign(np.sqrt(disc), b))  # the stable pair of roots
+        t1, t2 = root / a, cc / root
+        t = np.where((t1 > 0) & ((t1 <= t2) | ~(t2 > 0)), t1, t2)  # NaN where disc < 0
+    P = O + t[:, None] * d
+    z = z0 + t * dz
+    rel = P - (c + R * u)
+    m = rel + z[:, None] * u - (((1.0 + Q) * z - R)[:, None] * u)  # outward normal, |m| = R_s
+    r_s = np.linalg.norm(m, axis=-1)
+    n = m / r_s[:, None]
+    r_t = r_s ** 3 / (R * R)
+    cos_i = np.clip(-np.einsum("ij,ij->i", d, n), 1e-6, 1.0)
+    t_s = _across(n, np.broadcast_to(u, n.shape))  # across the meridional plane
+    t_m = np.cross(n, t_s)
+    e_across = _across(n, -d)  # across the plane of incidence
+    e_in = np.cross(e_across, n)
+    k_m, k_s = 1.0 / r_t, 1.0 / r_s
+
+    def curv(x, y):  # x^T K y in the tangent plane
+        return (k_m * np.einsum("ij,ij->i", x, t_m) * np.einsum("ij,ij->i", y, t_m)
+                + k_s * np.einsum("ij,ij->i", x, t_s) * np.einsum("ij,ij->i", y, t_s))
+
+    to_l = np.asarray(lights_world_m, dtype=np.float64).reshape(-1, 3) - P
+    d_l = np.linalg.norm(to_l, axis=-1)
+    d_c = t
+    q11 = 1.0 / d_l + 2.0 * curv(e_in, e_in) / cos_i
+    q12 = 2.0 * curv(e_in, e_across)
+    q22 = 1.0 / d_l + 2.0 * cos_i * curv(e_across, e_across)
+    det = (1.0 + d_c * q11) * (1.0 + d_c * q22) - (d_c * q12) ** 2
+    return 1.0 / (d_l * d_l * det), cos_i
 
 
 @dataclass(frozen=True, slots=True)
@@ -135,12 +249,13 @@ class GlintFlux:
         object.__setattr__(self, "noise_px", float(self.noise_px))
 
     def expected(self, camera, cornea_center_m, cornea_radius_m, lights_world_m, light_index,
-                 glints_px) -> np.ndarray:
+                 glints_px, *, asphericity: float = 0.0, eye_center_m=None) -> np.ndarray:
         """(k,) expected flux (DN) of glints of lights ``light_index`` (into the (n, 3)
-        ``lights_world_m``); NaN for lights without a calibrated power."""
+        ``lights_world_m``); NaN for lights without a calibrated power. A conic cornea:
+        ``asphericity`` and ``eye_center_m`` (:func:`model_flux`)."""
         li = np.asarray(light_index, dtype=np.int64)
         m = model_flux(camera, cornea_center_m, cornea_radius_m, lights_world_m[li], glints_px,
-                       self.fresnel)
+                       self.fresnel, asphericity=asphericity, eye_center_m=eye_center_m)
         return m * np.exp(self.log_power[li])
 
     def to_dict(self) -> dict:
@@ -180,7 +295,8 @@ class GlintFlux:
 
 
 def fit_glint_flux(camera, cornea_radius_m: float, lights_world_m, centers_m, glints_px,
-                   flux, noise_px: float = float("nan")) -> GlintFlux:
+                   flux, noise_px: float = float("nan"), *, asphericity: float = 0.0,
+                   eye_center_m=None) -> GlintFlux:
     """Each light's power from calibration frames: the median over frames of
     log(measured / model), for the Fresnel model whose log ratios spread less.
 
@@ -197,6 +313,8 @@ def fit_glint_flux(camera, cornea_radius_m: float, lights_world_m, centers_m, gl
         Their measured flux (DN).
     noise_px : float
         The calibration's RMS glint residual, recorded (:attr:`GlintFlux.noise_px`).
+    asphericity, eye_center_m
+        A conic cornea's Q and eye centre (:func:`model_flux`).
     """
     lights = np.asarray(lights_world_m, dtype=np.float64)
     g = np.asarray(glints_px, dtype=np.float64)
@@ -213,7 +331,8 @@ def fit_glint_flux(camera, cornea_radius_m: float, lights_world_m, centers_m, gl
             if ok.any():
                 with np.errstate(invalid="ignore", divide="ignore"):
                     logr[k, ok] = np.log(flux[k, ok] / model_flux(
-                        camera, c, cornea_radius_m, lights[ok], g[k, ok], fresnel))
+                        camera, c, cornea_radius_m, lights[ok], g[k, ok], fresnel,
+                        asphericity=asphericity, eye_center_m=eye_center_m))
         seen = np.isfinite(logr).sum(axis=0)
         with warnings.catch_warnings():  # all-NaN columns: lights never seen
             warnings.simplefilter("ignore", RuntimeWarning)
