@@ -2,7 +2,7 @@
 
 Materials: ``plain_dielectric`` (Mitsuba's own), ``dielectric`` (the default: the
 :mod:`scet_render.render.cornea_bsdf` plugin, reflection sampled with p = 0.75 from outside),
-``conductor`` (a mirror with the dielectric's Fresnel). One run prints four tables:
+``conductor`` (a mirror with the dielectric's Fresnel). One run prints three tables:
 
 1. glint centroid error against the closed form (``ground_truth_glints``, i.e.
    ``project_glints``) at the scene's full size, ``--spp`` samples, strobe light only, over
@@ -11,8 +11,9 @@ Materials: ``plain_dielectric`` (Mitsuba's own), ``dielectric`` (the default: th
 3. bias: region means (iris, pupil, sclera, skin; pixels classified by casting each pixel
    centre's ray, refracted once at the cornea) and glint energies of the new material at
    ``--spp`` against Mitsuba's dielectric at ``--ref-spp``, each over ``--seeds`` seeds, with the
-   standard error of the difference (seed scatter);
-4. ``max_depth`` 6 vs 12: the iris's mean ambient radiance with the new material.
+   standard error of the difference (seed scatter).
+
+Path depth (``max_depth``) and its bias per region: ``benchmarks/bench_depth.py``.
 
 Usage::
 
@@ -32,7 +33,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from estimator.scene import load_scene  # noqa: E402
 from scet_render.render import BandedRenderer  # noqa: E402
-from scet_render.render.layout import SceneOptions  # noqa: E402
 from scet_render.render.regions import REGIONS, region_labels  # noqa: E402
 from scet_render.simulate import ground_truth_glints  # noqa: E402
 from tests.scet_render.centroids import glint_centroids  # noqa: E402
@@ -138,16 +138,6 @@ def main(argv=None):
           f"{tot_se:.4f}, per glint median ratio {np.nanmedian(ea / eb):.4f}, "
           f"|difference| / sigma median "
           f"{np.nanmedian(np.abs(z)):.2f}, max {np.nanmax(np.abs(z)):.2f}")
-
-    deep = BandedRenderer(setup, spp=args.spp, cornea="dielectric", seed=1,
-                          options=SceneOptions(max_depth=12))
-    iris = labels == REGIONS.index("iris")
-    m6 = np.mean([r["dielectric"].render_rows(yaw, pitch, seed=200 + s)[1][iris].mean()
-                  for s in range(args.seeds)])
-    m12 = np.mean([deep.render_rows(yaw, pitch, seed=200 + s)[1][iris].mean()
-                   for s in range(args.seeds)])
-    print(f"\niris ambient mean: max_depth 6 {m6:.5g}, max_depth 12 {m12:.5g} "
-          f"(6 is {100 * (1 - m6 / m12):.1f} % darker)")
 
 
 if __name__ == "__main__":

@@ -401,8 +401,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="drop glints whose flux is far below the calibration's expected flux "
                         "and off where the fitted pose puts them (cut by a lash), and do the "
                         "band again without them; default: where the calibration has "
-                        "glint_flux (a spherical calibration from this version's scet "
-                        "calibrate); --flag-cut-glints refuses a calibration without it")
+                        "glint_flux (one from this version's scet calibrate, sphere or "
+                        "conic); --flag-cut-glints refuses a calibration without it")
     p.set_defaults(func=cmd_track)
 
     add_dataset_parsers(sub)

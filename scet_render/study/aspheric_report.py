@@ -309,7 +309,9 @@ joint fit), then identifies every calibration frame's detections again on the ca
 conic and recalibrates (the spherical matcher's identities of oblique glints are wrong on a
 conic); each band's fit starts from the sphere's answer and iterates on the conic's glints
 (the optical axis from c_e through the fitted centre). Identification stays the spherical
-matcher's.
+matcher's. Glints cut by a lash are flagged by their flux as the spherical tracker's are, on
+the conic's model (`estimator.calibration.flux.conic_flux`) with each light's power from the
+conic calibration's frames.
 
 {_conic_findings(conditions)}
 {conic_table(conditions)}
