@@ -11,7 +11,7 @@ saccades, calibrates (:func:`estimator.folders.calibrate_from_folder`, which fit
 label (clear: blocked fraction 0; lash-cut: a lash blocks 0-1 of it). Usage:
 
     python benchmarks/bench_cut_glints.py --out DIR [--spp 16] [--cornea dielectric]
-                                          [--frames 48] [--no-lashes]
+                                          [--frames 48] [--no-lashes] [--residual-flag K]
 
 Numbers measured with it are in README, "Glints cut by a lash".
 """
@@ -99,7 +99,13 @@ def main(argv=None) -> None:
     ap.add_argument("--cornea", default="dielectric", choices=("dielectric", "conductor"))
     ap.add_argument("--frames", type=int, default=48)
     ap.add_argument("--no-lashes", action="store_true")
+    ap.add_argument("--residual-flag", type=float, default=cut_glints.RESIDUAL_FLAG,
+                    help="the displacement a flagged glint needs, in calibration glint RMS "
+                         f"(default {cut_glints.RESIDUAL_FLAG:g}: estimator.cut_glints)")
     args = ap.parse_args(argv)
+    if not (np.isfinite(args.residual_flag) and args.residual_flag >= 0):
+        raise SystemExit(f"--residual-flag: a number >= 0 expected, got {args.residual_flag}")
+    cut_glints.RESIDUAL_FLAG = args.residual_flag
     setup, cal = prepare(args.out, args.spp, args.cornea, args.frames, not args.no_lashes)
     ref, model = reference_spread(setup, args.out, cal)
     print(f"{args.spp} spp, {args.cornea}, {'no lashes' if args.no_lashes else '40 lashes'}: "
@@ -121,7 +127,8 @@ def main(argv=None) -> None:
         counts[cls][1] += bad
     (nc, fc), (nl, fl) = counts["clear"], counts["lash"]
     print(f"checked glints: {nc} clear ({fc} flagged), {nl} cut by a lash ({fl} flagged), "
-          f"{counts['other'][0]} other ({counts['other'][1]} flagged); recall "
+          f"{counts['other'][0]} other ({counts['other'][1]} flagged); residual flag "
+          f"{cut_glints.RESIDUAL_FLAG:g} x RMS; recall "
           f"{fl / max(nl, 1):.2f}, precision {fl / max(fl + fc + counts['other'][1], 1):.2f}")
     e_off, e_on = errors(setup, off, labels), errors(setup, on, labels)
     both = np.isfinite(e_off) & np.isfinite(e_on)

@@ -34,15 +34,22 @@ from .samples import GazeSample
 #: log units) and its centroid is further than RESIDUAL_FLAG times the calibration's RMS glint
 #: residual (:attr:`GlintFlux.noise_px`, px) from where the fitted pose puts it: a lash that
 #: dims a glint without moving it does the fit no harm, and flux alone is noisy. Clear glints'
-#: fluxes spread by a log-SD of 0.16 (dielectric cornea, 16 spp, 320 x 240) to 0.21-0.28 (4 spp,
+#: fluxes spread by a log-SD of 0.16 (dielectric cornea, 16 spp, 320 x 240) to 0.21-0.30 (4 spp,
 #: conductor / dielectric): the Monte Carlo noise of the few rays that see a sub-pixel glint,
-#: which no model of the pose removes. Measured on 48 frames with 40 lashes (16 spp; 1568
-#: clear and 145 lash-cut glints of accepted samples): flux alone at 2.5 SD flagged 71 cut and
-#: 49 clear glints; with the residual at 1.2 x 0.166 px, 2.0 SD flags 69 cut and 21 clear
-#: (1.5 SD and 1.6 x: 62 and 9). At 4 spp neither separates them (14 cut of 104, 39 of 1459
-#: clear).
+#: which no model of the pose removes. A clear glint's residual is Rayleigh-distributed about
+#: the calibration's RMS, so it passes RESIDUAL_FLAG x RMS with probability
+#: exp(-RESIDUAL_FLAG²): 24 % at 1.2, 0.2 % at 2.5. Measured (benchmarks/bench_cut_glints.py,
+#: 48 frames with 40 lashes, geometric gaze; 16 spp: 1568 clear and 145 lash-cut glints of
+#: accepted samples; 4 spp: 1443 and 106): at 2.5 x RMS and 2.0 SD the flag takes 40 cut and
+#: 2 clear glints at 16 spp (recall 0.28, precision 0.95; mean error 0.043 -> 0.042 deg, p95
+#: 0.097 -> 0.095) and 8 cut and 3 clear at 4 spp (0.08, 0.73); at 1.2 x, 68 and 19 (0.47,
+#: 0.78; p95 -> 0.089) and 16 and 38 (0.15, 0.30). The false flags of 1.2 x cost the free-centre
+#: fit of polynomial gaze a glint it needs: on the quick validation's lashless 4-spp frames
+#: its own-glint median at 16 pulses rose from 0.801 to 0.867 deg (2.5 x: 0.801). Lash cuts
+#: large enough to matter stand out at 2.5 x either way (Q = -0.45 moving lids, conic tracker:
+#: 0.669 deg without the flag, 0.365 at 1.2 x, 0.366 at 2.5 x).
 FLUX_FLAG_SD = 2.0
-RESIDUAL_FLAG = 1.2
+RESIDUAL_FLAG = 2.5
 
 
 def log_ratios(pos, R, intrinsics, center, r, lights_world, light_index, used, g, flux,

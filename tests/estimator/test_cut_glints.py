@@ -235,7 +235,11 @@ def test_too_few_glints_left_without_a_prior_is_a_nan_sample_with_a_reason(band)
         flux = _expected(tr, cal, sample)
         g = sample.glints_px.copy()
         many = np.arange(sample.n_glints) >= MIN_GLINTS - 1  # all but MIN_GLINTS - 1 cut
-        g[many, 0] += 0.8
+        # Each moved its own way (the fit cannot follow them all) by 0.9 px: 4.5 x the
+        # calibration's 0.2 px, past RESIDUAL_FLAG x 0.2 however the fit leans, and within
+        # the tracker's 1 px residual limit for the first pass.
+        turn = np.linspace(0.0, 2.0 * np.pi, many.sum(), endpoint=False)
+        g[many] += 0.9 * np.stack([np.cos(turn), np.sin(turn)], axis=1)
         flux[many] *= 0.3
         tr._flag_cut = True
         out = tr._band(sample.frame_index, g, _band_of(tr, sample), sample.time_s, flux)
