@@ -12,7 +12,7 @@ prior is fitted again with its prior, and one left with too few glints of its ow
 take it. The check runs compiled where Numba is (:data:`estimator.matching.kernels.ENABLED`):
 one loop over the band's glints (:func:`log_ratios`; the numpy model of
 :func:`estimator.calibration.model_flux` otherwise). A conic calibration's check uses the
-conic's flux and glints (:func:`_flagged_conic`, numpy).
+conic's flux and glints (numpy).
 """
 
 from __future__ import annotations
@@ -169,10 +169,7 @@ def flagged(calibration, camera, lights_world_m, sample: GazeSample, g, flux,
     glint_flux, cornea_radius_m = calibration.glint_flux, calibration.cornea_radius_m
     floor = -FLUX_FLAG_SD * glint_flux.log_sd
     noise = glint_flux.noise_px
-    if calibration.conic:
-        return _flagged_conic(calibration, camera, lights_world_m, sample, g, flux, floor,
-                              noise)
-    if match_kernels.ENABLED:
+    if match_kernels.ENABLED and not calibration.conic:
         out = np.empty(used.shape[0], dtype=np.bool_)
         flag_kernel(*(camera_arrays(camera) if arrays is None else arrays),
                     sample.cornea_center_m, float(cornea_radius_m), lights_world_m,
@@ -180,42 +177,28 @@ def flagged(calibration, camera, lights_world_m, sample: GazeSample, g, flux,
                     glint_flux.fresnel == "dielectric", CORNEA_REFRACTIVE_INDEX, floor,
                     RESIDUAL_FLAG * noise if np.isfinite(noise) else -1.0, out)
         return out
-    rows = _same_points(g, used).argmax(axis=0)
+    # numpy: the sphere's model without Numba; a conic calibration's always (the conic's
+    # expected flux with Q and the eye centre, its exact glints; its fits are numpy too).
+    conic = {"asphericity": calibration.cornea_asphericity,
+             "eye_center_m": calibration.eye_center_m} if calibration.conic else {}
+    rows = same_points(g, used).argmax(axis=0)
     expected = glint_flux.expected(camera, sample.cornea_center_m, cornea_radius_m,
-                                   lights_world_m, sample.light_index, used)
+                                   lights_world_m, sample.light_index, used, **conic)
     with np.errstate(divide="ignore", invalid="ignore"):
         low = np.log(flux[rows] / expected) < floor
     if low.any() and np.isfinite(noise):  # most bands have no dim glint
-        pred, _ = glints_one_pose(camera, sample.cornea_center_m, cornea_radius_m,
-                                  lights_world_m[sample.light_index[low]])
-        off = np.hypot(pred[:, 0] - used[low, 0], pred[:, 1] - used[low, 1])
-        low[low] = off > RESIDUAL_FLAG * noise
-    return low
-
-
-def _flagged_conic(calibration, camera, lights_world_m, sample: GazeSample, g, flux, floor,
-                   noise) -> np.ndarray:
-    """:func:`flagged` on a conic calibration's cornea: the conic's expected flux
-    (:func:`estimator.calibration.model_flux` with Q and the eye centre) and its exact glints
-    (:func:`estimator.cornea.conic_glints`); numpy only (the conic tracker's fits are)."""
-    used, li = sample.glints_px, sample.light_index
-    rows = _same_points(g, used).argmax(axis=0)
-    r_c, q, ce = calibration.cornea_radius_m, calibration.cornea_asphericity, \
-        calibration.eye_center_m
-    expected = calibration.glint_flux.expected(camera, sample.cornea_center_m, r_c,
-                                               lights_world_m, li, used, asphericity=q,
-                                               eye_center_m=ce)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        low = np.log(flux[rows] / expected) < floor
-    if low.any() and np.isfinite(noise):
-        pred = conic_glints(camera, sample.cornea_center_m[None], ce, r_c, q,
-                            lights_world_m[li[low]])[0]
+        dim = lights_world_m[sample.light_index[low]]
+        if conic:
+            pred = conic_glints(camera, sample.cornea_center_m[None], conic["eye_center_m"],
+                                cornea_radius_m, conic["asphericity"], dim)[0]
+        else:
+            pred, _ = glints_one_pose(camera, sample.cornea_center_m, cornea_radius_m, dim)
         off = np.hypot(pred[:, 0] - used[low, 0], pred[:, 1] - used[low, 1])
         low[low] = off > RESIDUAL_FLAG * noise  # NaN (no glint there): False
     return low
 
 
-def _same_points(g, points) -> np.ndarray:
+def same_points(g, points) -> np.ndarray:
     """(m, k) bool: which of the band's detections ``g`` (m, 2) each of ``points`` (k, 2) is
     (a sample's glints are copies of detections, so equal to the last bit)."""
     return (g[:, None, 0] == points[None, :, 0]) & (g[:, None, 1] == points[None, :, 1])
@@ -226,4 +209,4 @@ def kept_detections(g, cut) -> np.ndarray:
     ``cut`` (c, 2)."""
     if cut.shape[0] == 0:
         return np.ones(g.shape[0], dtype=bool)
-    return ~_same_points(g, cut).any(axis=1)
+    return ~same_points(g, cut).any(axis=1)

@@ -45,6 +45,7 @@ from .calibration import (
 from .capture import is_capture_folder
 from .checks import load_json
 from .cornea import check_conic
+from .cut_glints import same_points
 from .formats import atomic_write
 from .gaze import fit_cornea_centers
 from .glints import NO_BAND, detect_glints
@@ -123,6 +124,16 @@ class CalibrationGlints:
     frames: tuple
     detected: tuple = ()  # of (frame, target (3,), detections (k, 2), their flux (k,))
     flux: np.ndarray | None = None  # (m, n) the identified glints' flux (DN), NaN where missing
+
+    @property
+    def detections(self) -> list:
+        """Each detected frame's detections (k_i, 2)."""
+        return [d for _, _, d, _ in self.detected]
+
+    @property
+    def detected_targets_m(self) -> np.ndarray:
+        """(k, 3) each detected frame's target."""
+        return np.array([t for _, t, _, _ in self.detected]).reshape(-1, 3)
 
 
 #: Calibration frames: the least share of a pulse every visible row must collect (a row that
@@ -233,8 +244,7 @@ def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere")
         # The spherical matcher's identities of oblique glints are wrong on a conic cornea:
         # identify every detected frame again on the calibrated conic, and recalibrate.
         cal = reidentify_on_conic(
-            cal, cal_setup, [d for _, _, d, _ in cg.detected],
-            np.array([t for _, t, _, _ in cg.detected]),
+            cal, cal_setup, cg.detections, cg.detected_targets_m,
             lambda g, t: calibrate_from_glints(cal_setup, g, t, frames_total=total,
                                                cornea_model="conic"),
             gate_px=MatchParams().gate_px, min_glints=MIN_GLINTS)
@@ -248,21 +258,19 @@ def glints_on_conic(calibration: Calibration, setup: Setup, cg: CalibrationGlint
     left out) and their flux (m, n) (None where the frames had no detections)."""
     if not len(cg.detected):
         return np.empty((0, setup.lights.count, 2)), None
-    glints = identify_on_conic(calibration, setup, [d for _, _, d, _ in cg.detected],
-                               np.array([t for _, t, _, _ in cg.detected]),
+    glints = identify_on_conic(calibration, setup, cg.detections, cg.detected_targets_m,
                                gate_px=MatchParams().gate_px)
     return glints, np.stack([_flux_of(g, d, fx) for g, (_, _, d, fx) in zip(glints, cg.detected)])
 
 
 def _flux_of(glints_px, detections, flux) -> np.ndarray:
     """(n,) the flux of each identified glint (n, 2): that of the detection (k, 2) it is (the
-    identification copies detections, so equal to the last bit); NaN where none."""
+    identification copies detections: :func:`estimator.cut_glints.same_points`); NaN where
+    none."""
+    same = same_points(detections, glints_px)  # (k, n)
+    hit = same.any(axis=0)
     out = np.full(glints_px.shape[0], np.nan)
-    if detections.shape[0]:
-        same = (glints_px[:, None, 0] == detections[None, :, 0]) & \
-            (glints_px[:, None, 1] == detections[None, :, 1])
-        hit = same.any(axis=1)
-        out[hit] = np.asarray(flux, dtype=np.float64)[same.argmax(axis=1)[hit]]
+    out[hit] = np.asarray(flux, dtype=np.float64)[same.argmax(axis=0)[hit]]
     return out
 
 

@@ -98,39 +98,35 @@ def model_flux(camera, cornea_center_m, cornea_radius_m: float, lights_world_m, 
         raise ValueError(f"lights_world_m must have shape ({g.shape[0]}, 3), got {L.shape}")
     if fresnel not in FRESNEL_MODELS:
         raise ValueError(f"fresnel must be one of {FRESNEL_MODELS}, got {fresnel!r}")
+    d = camera.pixel_rays(g)
+    pinhole = (d @ camera.rotation[2]) ** -3  # 1 / cos³ φ, φ off the optical axis
     if asphericity != 0.0:
         if eye_center_m is None:
             raise ValueError("a conic cornea's flux needs eye_center_m (its axis)")
-        xn = (g[:, 0] - camera.cx_px) / camera.fx_px
-        yn = (g[:, 1] - camera.cy_px) / camera.fy_px
-        q = 1.0 + xn * xn + yn * yn
-        d = (xn[:, None] * camera.rotation[0] + yn[:, None] * camera.rotation[1]
-             + camera.rotation[2]) / np.sqrt(q)[:, None]
         e, cos_i = conic_flux(camera.position_m, d, cornea_center_m, eye_center_m,
                               cornea_radius_m, asphericity, L)
-        f = fresnel_reflectance(cos_i) if fresnel == "dielectric" else 1.0
-        return f * e * q * np.sqrt(q)
+    else:
+        e, cos_i = _sphere_flux(camera.position_m, d, cornea_center_m, cornea_radius_m, L)
+    f = fresnel_reflectance(cos_i) if fresnel == "dielectric" else 1.0
+    return f * e * pinhole
+
+
+def _sphere_flux(camera_position_m, d, cornea_center_m, cornea_radius_m, L):
+    """:func:`conic_flux` of the sphere: Coddington's vergences in closed form (module
+    docstring); rays ``d`` (k, 3) from the camera, lights ``L`` (k, 3)."""
     r = float(cornea_radius_m)
-    C = camera.position_m
-    xn = (g[:, 0] - camera.cx_px) / camera.fx_px
-    yn = (g[:, 1] - camera.cy_px) / camera.fy_px
-    q = 1.0 + xn * xn + yn * yn  # 1 / cos² φ
-    d = (xn[:, None] * camera.rotation[0] + yn[:, None] * camera.rotation[1]
-         + camera.rotation[2]) / np.sqrt(q)[:, None]
+    C = camera_position_m
     oc = C - np.asarray(cornea_center_m, dtype=np.float64).reshape(3)
     b = d @ oc
     disc = b * b - (oc @ oc - r * r)
     with np.errstate(invalid="ignore"):
         t = -b - np.sqrt(disc)  # the near intersection: NaN where the ray misses
     d_c = t
-    cos_i = -(b + t) / r  # n · (-d) with n = (C + t d - c) / r
+    cos_i = np.clip(-(b + t) / r, 1e-6, 1.0)  # n · (-d) with n = (C + t d - c) / r
     to_l = L - (C + t[:, None] * d)
     d_l = np.sqrt(np.einsum("ij,ij->i", to_l, to_l))
-    cos_i = np.clip(cos_i, 1e-6, 1.0)
     a = 1.0 + d_c / d_l
-    e = 1.0 / (d_l * d_l * (a + 2.0 * d_c / (r * cos_i)) * (a + 2.0 * d_c * cos_i / r))
-    f = fresnel_reflectance(cos_i) if fresnel == "dielectric" else 1.0
-    return f * e * q * np.sqrt(q)
+    return 1.0 / (d_l * d_l * (a + 2.0 * d_c / (r * cos_i)) * (a + 2.0 * d_c * cos_i / r)), cos_i
 
 
 def _unit(v):
