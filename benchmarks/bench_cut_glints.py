@@ -29,13 +29,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # this checkout's 
 
 import numpy as np  # noqa: E402
 
-import estimator.cut_glints as cut_glints  # noqa: E402
+import estimator.tracking.cut_glints as cut_glints  # noqa: E402
+import estimator.tracking.tracker as tracker_module  # noqa: E402
 from estimator.banding import scaled_setup  # noqa: E402
 from estimator.folders import (calibrate_from_folder, calibration_glints, iter_folder,  # noqa: E402
                                load_calibration, save_calibration)
 from estimator.metrics import angular_error_deg  # noqa: E402
 from estimator.scene import load_scene  # noqa: E402
-from estimator.tracker import Tracker  # noqa: E402
+from estimator.tracking import Tracker  # noqa: E402
 from scet_render.dataset import iter_labels, render_calibration, render_dataset  # noqa: E402
 from scet_render.study.aspheric import moving_lid_scene  # noqa: E402
 from scet_render.validate.score import true_gaze_points  # noqa: E402
@@ -70,7 +71,7 @@ def reference_spread(setup, out: Path, cal) -> tuple[float, float]:
 def track(setup, cal, frames, flag: bool, checked: list):
     """Samples of the frames; with the flag, each checked glint's (frame, strobe, light, flagged)
     appended to ``checked``."""
-    orig = cut_glints.flagged
+    orig = tracker_module.flagged
 
     def spy(calibration, camera, lights, sample, g, flux, arrays=None):
         bad = orig(calibration, camera, lights, sample, g, flux, arrays)
@@ -78,12 +79,12 @@ def track(setup, cal, frames, flag: bool, checked: list):
                        for i, b in zip(sample.light_index, bad))
         return bad
 
-    cut_glints.flagged = spy
+    tracker_module.flagged = spy
     try:
         tr = Tracker(setup, cal, "geometric", flag_cut_glints=flag)
         return [s for f, t0, img in frames for s in tr.process(img, f, t0)]
     finally:
-        cut_glints.flagged = orig
+        tracker_module.flagged = orig
 
 
 def errors(setup, samples, labels) -> np.ndarray:
@@ -101,7 +102,7 @@ def main(argv=None) -> None:
     ap.add_argument("--no-lashes", action="store_true")
     ap.add_argument("--residual-flag", type=float, default=cut_glints.RESIDUAL_FLAG,
                     help="the displacement a flagged glint needs, in calibration glint RMS "
-                         f"(default {cut_glints.RESIDUAL_FLAG:g}: estimator.cut_glints)")
+                         f"(default {cut_glints.RESIDUAL_FLAG:g}: estimator.tracking.cut_glints)")
     args = ap.parse_args(argv)
     if not (np.isfinite(args.residual_flag) and args.residual_flag >= 0):
         raise SystemExit(f"--residual-flag: a number >= 0 expected, got {args.residual_flag}")

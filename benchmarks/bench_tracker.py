@@ -47,6 +47,7 @@ import platform
 import sys
 import time
 from collections import defaultdict
+from dataclasses import replace
 from pathlib import Path
 
 for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -60,15 +61,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench_glints import moving_sequence  # noqa: E402
 
-import estimator.cut_glints as cut_glints  # noqa: E402
-import estimator.estimates as estimates_module  # noqa: E402
 import estimator.matching.follow as follow_module  # noqa: E402
 import estimator.matching.kernels as match_kernels  # noqa: E402
-import estimator.tracker as tracker_module  # noqa: E402
+import estimator.tracking.context as context_module  # noqa: E402
+import estimator.tracking.estimates as estimates_module  # noqa: E402
+import estimator.tracking.tracker as tracker_module  # noqa: E402
 from estimator.folders import iter_folder, load_calibration  # noqa: E402
 from estimator.glints import GlintDetector  # noqa: E402
+from estimator.reasons import Reason  # noqa: E402
 from estimator.scene import load_scene  # noqa: E402
-from estimator.tracker import OUT_OF_REACH, Tracker  # noqa: E402
+from estimator.tracking import Tracker  # noqa: E402
 from tests.estimator.simulated import ground_truth_calibration  # noqa: E402
 
 #: A Raspberry Pi 3B+ core against this kind of x86 core: 15x slower, 10-30x the range
@@ -104,11 +106,11 @@ def same(a, b) -> bool:
     """Whether samples ``b`` (the cheap path) are ``a``: reasons, and the identities and
     estimates (to 1e-6 m) of the estimated ones. A NaN band of ``b`` the cheap path left
     unsearched (``band_out_of_reach``) may name another reason in ``a``, a NaN there too
-    (:meth:`Tracker._unfillable`); a NaN sample's glints and lights are diagnostics of the
+    (:func:`estimator.tracking.dense_sample`); a NaN sample's glints and lights are diagnostics of the
     route that failed (a sparse band's prior-assisted retry keeps those of the failure before
     it, a search's or ``band_out_of_reach``'s), not answers."""
     return len(a) == len(b) and all(
-        (y.reason == OUT_OF_REACH and not x.ok) or (
+        (y.reason == Reason.OUT_OF_REACH and not x.ok) or (
             x.reason == y.reason and (not x.ok or (
                 np.array_equal(x.light_index, y.light_index)
                 and np.abs(x.cornea_center_m - y.cornea_center_m).max() < 1e-6)))
@@ -153,36 +155,36 @@ def breakdown(setup, cal, method, frames, compiled=True) -> dict:
     tr = Tracker(setup, cal, method)
     tr.follower.compiled = compiled and tr.follower.compiled
     tr.follower._follow_compiled = _Timed(tr.follower._follow_compiled, totals, "follow")
-    tr._detector = _Timed(tr._detector, totals, "detect")
+    tr.detector = _Timed(tr.detector, totals, "detect")
     tr.follower.predict = _Timed(tr.follower.predict, totals, "predict")
     m = tr.matcher
     m._assign = _Timed(m._assign, totals, "assign")
     m._final_assign = _Timed(m._final_assign, totals, "assign")
-    saved = (follow_module.fit_small, tracker_module.screen_intersection)
+    saved = (follow_module.fit_small, context_module.screen_intersection)
     follow_module.fit_small = estimates_module.fit_small = _Timed(saved[0], totals, "fit")
-    tracker_module.screen_intersection = _Timed(saved[1], totals, "map")
-    tr._of_strobe = _Timed(tr._of_strobe, totals, "group")
+    context_module.screen_intersection = _Timed(saved[1], totals, "map")
+    tr.of_strobe = _Timed(tr.of_strobe, totals, "group")
     m.match = _Timed(m.match, totals, "search")
     m.match_near = _Timed(m.match_near, totals, "prior")
-    if tr._map is not None:
-        tr._map = _TimedMapping(tr._map, totals)
+    if tr.context.gaze_map is not None:
+        tr.context = replace(tr.context, gaze_map=_TimedMapping(tr.context.gaze_map, totals))
     try:
         t = time.perf_counter()
         samples, _ = run(tr, frames)
         wall = time.perf_counter() - t
     finally:
-        follow_module.fit_small, tracker_module.screen_intersection = saved
+        follow_module.fit_small, context_module.screen_intersection = saved
         estimates_module.fit_small = saved[0]
     totals["other"] = wall - sum(totals[s] for s in STAGES if s != "other")
     return {"samples": len(samples), "wall": wall, **totals}
 
 
 def flux_cost(setup, cal, method, frames) -> dict:
-    """The cut-glint check's cost (``flag_cut_glints=True``, :mod:`estimator.cut_glints`):
+    """The cut-glint check's cost (``flag_cut_glints=True``, :mod:`estimator.tracking.cut_glints`):
     seconds and calls of the check of accepted bands and of the refits without flagged glints,
     and the pass's wall time against the same tracker without the check."""
     totals, calls = defaultdict(float), defaultdict(int)
-    saved = (cut_glints.flagged, Tracker._without)
+    saved = (tracker_module.flagged, Tracker.without)
 
     def timed(fn, stage):
         def call(*a, **k):
@@ -194,13 +196,13 @@ def flux_cost(setup, cal, method, frames) -> dict:
                 calls[stage] += 1
         return call
 
-    cut_glints.flagged, Tracker._without = timed(saved[0], "check"), timed(saved[1], "refit")
+    tracker_module.flagged, Tracker.without = timed(saved[0], "check"), timed(saved[1], "refit")
     try:
         run(Tracker(setup, cal, method, flag_cut_glints=True), frames[:3])  # warm-up
         totals.clear(), calls.clear()
         samples, lat = run(Tracker(setup, cal, method, flag_cut_glints=True), frames)
     finally:
-        cut_glints.flagged, Tracker._without = saved
+        tracker_module.flagged, Tracker.without = saved
     off, lat_off = run(Tracker(setup, cal, method, flag_cut_glints=False), frames)
     return {"samples": len(samples), "wall": lat.sum(), "wall_off": lat_off.sum(),
             "flagged": sum(s.flux_flagged.size for s in samples), **{f"{k}_s": v for k, v in
@@ -212,8 +214,6 @@ def conic_calibration(setup):
     """The exact calibration of ``setup``'s conic eye for the conic-aware tracker: as
     :func:`ground_truth_calibration`, with ``cornea_model = "conic"`` and the eye's Q, its
     Eq. (1) mapping fitted to the conic fits' centres."""
-    from dataclasses import replace
-
     from estimator.calibration import fit_gaze_mapping
     from estimator.gaze import fit_cornea_centers
 
@@ -264,8 +264,6 @@ def main(argv=None):
     args = ap.parse_args(argv)
     setup = load_scene("paper_sim")
     if args.conic is not None:
-        from dataclasses import replace
-
         if args.dataset is not None:
             ap.error("--conic runs on synthetic frames; leave out --dataset")
         setup = replace(setup, eye=replace(setup.eye, cornea_asphericity=args.conic))

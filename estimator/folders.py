@@ -45,7 +45,6 @@ from .calibration import (
 from .capture import is_capture_folder
 from .checks import load_json
 from .cornea import check_conic
-from .cut_glints import same_points
 from .formats import atomic_write
 from .gaze import fit_cornea_centers
 from .glints import NO_BAND, detect_glints
@@ -63,9 +62,11 @@ from .inputs import (
     timing_document,
 )
 from .matching import GlintMatcher, MatchParams
-from .samples import SAMPLE_COLUMNS, read_samples_csv, samples_csv, write_samples_csv  # noqa: F401
+from .reasons import Reason
 from .setup import Setup
-from .tracker import INTERNAL_ERROR, MIN_GLINTS, Tracker, TrackerInputError
+from .tracking import (  # noqa: F401 (the samples CSV: re-exported)
+    MIN_GLINTS, SAMPLE_COLUMNS, Tracker, TrackerInputError, read_samples_csv, same_points,
+    samples_csv, write_samples_csv)
 
 log = logging.getLogger(__name__)
 
@@ -265,7 +266,7 @@ def glints_on_conic(calibration: Calibration, setup: Setup, cg: CalibrationGlint
 
 def _flux_of(glints_px, detections, flux) -> np.ndarray:
     """(n,) the flux of each identified glint (n, 2): that of the detection (k, 2) it is (the
-    identification copies detections: :func:`estimator.cut_glints.same_points`); NaN where
+    identification copies detections: :func:`estimator.tracking.same_points`); NaN where
     none."""
     same = same_points(detections, glints_px)  # (k, n)
     hit = same.any(axis=0)
@@ -391,7 +392,7 @@ class TrackSummary:
     def internal_errors(self) -> int:
         """Frames whose processing raised (a bug: logged with its traceback); their samples
         are NaN with reason ``internal_error:<exception>``."""
-        return len({s.frame_index for s in self.samples if s.reason.startswith(INTERNAL_ERROR)})
+        return len({s.frame_index for s in self.samples if s.reason.startswith(Reason.INTERNAL_ERROR)})
 
 
 def tracking_calibration(folder, calibration, out_csv, *, method: str = "polynomial",

@@ -41,9 +41,10 @@ from .cornea import (
     fit_covariance,
 )
 from .eye import gaze_direction
+from .reasons import Reason
 
 #: The optical axis does not reach the screen plane (it points away from it).
-MISSES_SCREEN = "misses_screen"
+MISSES_SCREEN = Reason.MISSES_SCREEN.value
 REASONS = (OK, TOO_FEW_GLINTS, NOT_CONVERGED, NON_FINITE, MISSES_SCREEN)
 #: Bounds on the orbit fit's Fick angles (rad). The human oculomotor range is about +/-50 deg;
 #: the bound only keeps the solver on the front half of the orbit, where the optical axis can

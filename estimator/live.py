@@ -38,7 +38,7 @@ from .folders import (
     write_samples_csv,
 )
 from .setup import Setup
-from .tracker import Tracker, TrackerInputError
+from .tracking import Tracker, TrackerInputError
 
 log = logging.getLogger(__name__)
 

@@ -2,7 +2,9 @@
 
 - no import circles between modules;
 - imports run down the layers below, never up (the estimator never reaches the renderer);
-- nothing outside a subpackage imports a private (``_name``) name or module from inside it;
+- nothing outside a subpackage imports a private (``_name``) name or module from inside it, or
+  reaches into a private attribute (``obj._name``) that only modules outside its own subpackage
+  (its own module, for a top-level one) define;
 - every subpackage has a face (``__init__.py`` with ``__all__``) that names only what it
   re-exports, and no module is over 500 lines.
 """
@@ -15,13 +17,15 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("estimator", "scet_render")
+PACKAGES = ("estimator", "scet_render", "hardware")
+#: Installed names of packages whose folder has another name (pyproject.toml package-dir).
+INSTALLED_AS = {"hardware": "scet_hardware"}
 
 #: Layers, lowest first: a module may import from its own layer and the ones before it. The
 #: first dotted part under the package names the layer (a subpackage or a top-level module).
 LAYERS = {
     "estimator": [
-        {"errors", "checks", "formats"},
+        {"errors", "checks", "formats", "reasons"},
         {"geometry"},
         {"eye", "setup"},
         {"eyelids"},
@@ -31,7 +35,7 @@ LAYERS = {
         {"gaze"},
         {"glints", "capture"},
         {"matching"},
-        {"tracker", "samples", "estimates", "cut_glints", "assisted"},
+        {"tracking", "tracker"},
         {"inputs", "folders"},
         {"live"},
     ],
@@ -42,9 +46,23 @@ LAYERS = {
         {"validate", "reproduce", "design", "study", "compare"},
         {"cli", "cli_data", "cli_progress", "cli_studies", "runner", "__main__"},
     ],
+    "hardware": [
+        {"firmware", "mirror"},
+        {"profiles", "strobe", "lock", "capture"},
+        {"cli"},
+    ],
 }
 #: What each package may import of the other packages and heavy libraries.
-FORBIDDEN = {"estimator": ("scet_render", "scet_hardware", "mitsuba", "drjit", "OpenEXR", "trimesh")}
+FORBIDDEN = {
+    "estimator": ("scet_render", "scet_hardware", "hardware", "mitsuba", "drjit", "OpenEXR",
+                  "trimesh"),
+    # The prototype's code runs on the Pi beside the estimator: never the renderer, except the
+    # `scet hardware` subcommand's module, which plugs into scet's CLI (its flag checks).
+    "hardware": ("scet_render", "mitsuba", "drjit", "OpenEXR", "trimesh"),
+}
+#: Modules allowed one of their package's FORBIDDEN imports, and which: the mirror's STL
+#: export (trimesh, imported when a mesh is written, on the desktop that prints the part).
+FORBIDDEN_EXCEPT = {"hardware.cli": {"scet_render"}, "hardware.mirror": {"trimesh"}}
 MAX_LINES = 500
 
 
@@ -145,7 +163,7 @@ def test_imports_run_down_the_layers():
         for target, name, line in _imports(m, path):
             root = target.split(".")[0]
             for bad in FORBIDDEN.get(m.split(".")[0], ()):
-                if root == bad:
+                if root == bad and bad not in FORBIDDEN_EXCEPT.get(m, ()):
                     up.append(f"{m}:{line} imports {target}")
             dst = _layer(target) if target.split(".")[0] == m.split(".")[0] else None
             if src and dst and dst[1] > src[1]:
@@ -156,7 +174,7 @@ def test_imports_run_down_the_layers():
 def _subpackage(module: str) -> str | None:
     """The subpackage (``pkg.sub``) a module belongs to, or None for a top-level module."""
     parts = module.split(".")
-    if len(parts) >= 2 and (ROOT / parts[0] / parts[1]).is_dir():
+    if len(parts) >= 2 and (ROOT / parts[0] / parts[1] / "__init__.py").is_file():
         return ".".join(parts[:2])
     return None
 
@@ -201,5 +219,66 @@ def test_every_package_is_installed():
     import tomllib
 
     listed = set(tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"])
-    present = {m for m, p in MODULES.items() if p.name == "__init__.py"}
+    present = {INSTALLED_AS.get(m.split(".")[0], m.split(".")[0]) + m[len(m.split(".")[0]):]
+               for m, p in MODULES.items() if p.name == "__init__.py"}
     assert present - listed == set()
+
+
+#: Private attributes of other libraries' public API (namedtuple's, sys's, os's).
+FOREIGN_PRIVATE = {"_replace", "_asdict", "_fields", "_make", "_field_defaults", "_getframe",
+                   "_exit"}
+
+
+def _defined_names(path: Path) -> set:
+    """Every name a module defines or binds: functions, classes, assigned names and
+    attributes (``self._x = ...``), annotated fields, arguments and imports."""
+    names = set()
+    for n in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(n, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+            names.add(n.name)
+        elif isinstance(n, ast.Attribute) and isinstance(n.ctx, ast.Store):
+            names.add(n.attr)
+        elif isinstance(n, ast.Name) and isinstance(n.ctx, ast.Store):
+            names.add(n.id)
+        elif isinstance(n, ast.arg):
+            names.add(n.arg)
+        elif isinstance(n, ast.alias):
+            names.add(n.asname or n.name.split(".")[-1])
+    return names
+
+
+def _home(module: str) -> str:
+    """The unit of privacy of a module: its subpackage, or the module itself."""
+    return _subpackage(module) or module
+
+
+@pytest.mark.parametrize("pkg", PACKAGES)
+def test_no_private_attribute_is_reached_across_a_border(pkg):
+    """``obj._name`` (an attribute, not an import) where no module of the reader's own
+    subpackage (its own module, for a top-level module) defines ``_name``: it reads a private
+    of another module through an object (``tracker._state`` from another module)."""
+    defined = {}
+    for m, path in MODULES.items():
+        defined.setdefault(_home(m), set()).update(_defined_names(path))
+    reached = []
+    for m, path in MODULES.items():
+        if not m.startswith(pkg):
+            continue
+        own = defined[_home(m)]
+        for n in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(n, ast.Attribute) and n.attr.startswith("_") \
+                    and not n.attr.startswith("__") and n.attr not in FOREIGN_PRIVATE \
+                    and n.attr not in own:
+                reached.append(f"{m}:{n.lineno} reads {ast.unparse(n)}")
+    assert reached == []
+
+
+def test_a_reach_in_is_caught(tmp_path):
+    """The reach-in check sees what it is for: a private attribute set in one module and read
+    through an object in another."""
+    a, b = tmp_path / "a.py", tmp_path / "b.py"
+    a.write_text("class T:\n    def __init__(self):\n        self._state = 1\n")
+    b.write_text("def f(tracker):\n    return tracker._state, tracker.public\n")
+    reads = [n.attr for n in ast.walk(ast.parse(b.read_text())) if isinstance(n, ast.Attribute)
+             and n.attr.startswith("_") and n.attr not in _defined_names(b)]
+    assert "_state" in _defined_names(a) and reads == ["_state"]

@@ -9,10 +9,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry import Camera, rotations_from_vectors
+from ..reasons import Reason
 
 MODELS = {"center": 3, "center_radius": 4, "orbit": 2, "full": 10}
-#: Reason codes of a fit, per sample.
-OK, TOO_FEW_GLINTS, NOT_CONVERGED, NON_FINITE = "ok", "too_few_glints", "not_converged", "non_finite"
+#: Reason codes of a fit, per sample (:class:`estimator.reasons.Reason`; the values, plain
+#: strings, fill the fits' arrays of reasons).
+OK, TOO_FEW_GLINTS, NOT_CONVERGED, NON_FINITE = (
+    Reason.OK.value, Reason.TOO_FEW_GLINTS.value, Reason.NOT_CONVERGED.value,
+    Reason.NON_FINITE.value)
 
 
 @dataclass(frozen=True, slots=True)

@@ -8,9 +8,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-#: Reason codes of a :class:`GlintMatch`.
+from ..reasons import Reason
+
+#: Reason codes of a :class:`GlintMatch` (:class:`estimator.reasons.Reason`).
 OK, TOO_FEW_GLINTS, NO_HYPOTHESIS, FIT_FAILED, AMBIGUOUS = (
-    "ok", "too_few_glints", "no_hypothesis", "fit_failed", "ambiguous")
+    Reason.OK, Reason.TOO_FEW_GLINTS, Reason.NO_HYPOTHESIS, Reason.FIT_FAILED, Reason.AMBIGUOUS)
 
 
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from estimator.formats import atomic_write
 from estimator.setup import Setup
-from estimator.tracker import BandPrior
+from estimator.tracking import BandPrior
 
 from .config import IDENTITY_RADIUS_PX
 

@@ -44,9 +44,10 @@ from estimator.folders import (
 )
 from estimator.gaze import calibrated_problems, geometric_gaze, polynomial_gaze, screen_intersection
 from estimator.metrics import angular_error_deg
+from estimator.reasons import Reason
 from estimator.scene import load_scene
 from estimator.setup import Setup
-from estimator.tracker import MAX_RESIDUAL_PX, RESIDUAL_TOO_LARGE, TrackerInputError
+from estimator.tracking import MAX_RESIDUAL_PX, TrackerInputError
 
 from ..dataset import render_calibration
 from .config import (
@@ -146,7 +147,7 @@ def geometric_from(setup: Setup, calibration: Calibration, samples) -> list:
         est = geometric_gaze(setup, calibration, g, problems=problems)
         reason = str(est.reason[0])
         if reason == "ok" and not est.rms_px[0] <= MAX_RESIDUAL_PX:
-            reason = RESIDUAL_TOO_LARGE
+            reason = Reason.RESIDUAL_TOO_LARGE
         ok = reason == "ok"
         out.append(replace(s, screen_xy_m=est.screen_xy_m[0].copy() if ok else np.full(2, np.nan),
                            cornea_center_m=(est.cornea_center_m[0].copy() if ok

@@ -70,7 +70,7 @@ def test_the_closed_form_2x2_inverse_and_prior_growth():
     """inverse_2x2 is np.linalg.inv (1e-12 relative) on positive definite matrices and None on
     singular ones; BandPrior.predict's closed-form largest eigenvalue decides as eigvalsh does
     on 2,000 random covariances around its 0.75 deg limit."""
-    from estimator.samples import BandPrior, inverse_2x2
+    from estimator.tracking import BandPrior, inverse_2x2
 
     rng = np.random.default_rng(9)
     for _ in range(200):

@@ -1,6 +1,6 @@
 """Glints cut by a lash: the expected-flux model, its calibration file key, the flag and the
-band done again without the flagged glints (estimator.calibration.flux, estimator.cut_glints,
-Tracker._band)."""
+band done again without the flagged glints (estimator.calibration.flux,
+estimator.tracking.cut_glints, Tracker.band)."""
 
 import json
 from dataclasses import replace
@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-import estimator.cut_glints as cut_glints
+import estimator.tracking.cut_glints as cut_glints
 import estimator.matching.kernels as match_kernels
 from estimator.banding import band_rows
 from estimator.calibration import Calibration, GlintFlux, fit_glint_flux, model_flux
@@ -16,9 +16,9 @@ from estimator.calibration.flux import fresnel_reflectance
 from estimator.errors import InputError
 from estimator.gaze import polynomial_gaze
 from estimator.geometry import project_glints
-from estimator.samples import read_samples_csv, write_samples_csv
 from estimator.scene import load_scene
-from estimator.tracker import MIN_GLINTS, Tracker
+from estimator.tracking import (MIN_GLINTS, StreamState, Tracker, read_samples_csv,
+                                write_samples_csv)
 from tests.estimator.simulated import ground_truth_calibration
 from tests.estimator.test_tracker import draw_frame
 from tests.tolerances import TOL
@@ -74,7 +74,7 @@ def band(setup):
 
 def _expected(tr, cal, sample):
     return cal.glint_flux.expected(tr.setup.camera, sample.cornea_center_m, cal.cornea_radius_m,
-                                   tr._problems.center.lights_world_m, sample.light_index,
+                                   tr.context.problems.center.lights_world_m, sample.light_index,
                                    sample.glints_px)
 
 
@@ -84,7 +84,7 @@ def _flagged(tr, cal, sample, flux):
     g = np.concatenate([sample.glints_px, rng.uniform(0, 400, (5, 2))])
     f = np.concatenate([flux, rng.uniform(1, 9, 5)])
     order = rng.permutation(g.shape[0])
-    return cut_glints.flagged(cal, tr.setup.camera, tr._problems.center.lights_world_m, sample,
+    return cut_glints.flagged(cal, tr.setup.camera, tr.context.problems.center.lights_world_m, sample,
                               g[order], f[order])
 
 
@@ -96,11 +96,11 @@ def test_compiled_log_ratios_are_the_numpy_model(band):
     for fresnel in ("dielectric", "constant"):
         gf = GlintFlux(np.linspace(-2, 2, tr.setup.lights.count), fresnel, 0.1, 0.2)
         want = np.log(flux / gf.expected(cam, sample.cornea_center_m, cal.cornea_radius_m,
-                                         tr._problems.center.lights_world_m,
+                                         tr.context.problems.center.lights_world_m,
                                          sample.light_index, sample.glints_px))
         got = cut_glints.log_ratios(
             cam.position_m, cam.rotation, np.array([cam.fx_px, cam.fy_px, cam.cx_px, cam.cy_px]),
-            sample.cornea_center_m, cal.cornea_radius_m, tr._problems.center.lights_world_m,
+            sample.cornea_center_m, cal.cornea_radius_m, tr.context.problems.center.lights_world_m,
             sample.light_index, sample.glints_px, sample.glints_px[::-1], flux[::-1],
             gf.log_power, fresnel == "dielectric", 1.376)
         assert np.allclose(got, want, rtol=0, atol=1e-12)
@@ -120,42 +120,33 @@ def _band_of(tr, sample):
     return int(pulses[k]), (int(first[k]), int(last[k]))
 
 
-def _state(tr):
-    return tr._prior_angles, tr._start, tr._state, tr._velocity
-
-
-def _restore(tr, state):
-    tr._prior_angles, tr._start, tr._state, tr._velocity = state
-
 
 def _flagged_and_reference(tr, sample, g, flux, drop, time_s=None):
     """The band of detections g with flux, the flag on, from ``tr``'s present state; the same
     band without the detections ``drop`` (bool) and the flag off, from the same state; and the
     tracker state after each."""
     band, t = _band_of(tr, sample), sample.time_s if time_s is None else time_s
-    before = _state(tr)
-    tr._flag_cut = True
-    try:
-        out = tr._band(sample.frame_index, g, band, t, flux)
-    finally:
-        tr._flag_cut = False
-    after = _state(tr)
-    _restore(tr, before)
-    ref = tr._band(sample.frame_index, g[~drop], band, t)
-    ref_after = _state(tr)
-    _restore(tr, before)
+    before = tr.state
+    out = tr.band(sample.frame_index, g, band, t, flux)
+    after = tr.state
+    tr.state = before
+    ref = tr.band(sample.frame_index, g[~drop], band, t)
+    ref_after = tr.state
+    tr.state = before
     return out, after, ref, ref_after
 
 
 def _same_state(a, b, atol=0.0):
-    """Tracker states a and b equal, or within ``atol`` (rotations in rad, centres in m;
+    """Stream states a and b equal, or within ``atol`` (rotations in rad, centres in m;
     covariances to a relative 1e3 x atol)."""
-    for x, y in zip(a, b):
-        if isinstance(x, tuple):
-            assert x[0] == y[0] and np.allclose(x[1], y[1], rtol=0, atol=atol)
-            assert np.allclose(x[2], y[2], rtol=1e3 * atol, atol=0)
-        else:
-            assert (x is None and y is None) or np.allclose(x, y, rtol=0, atol=atol)
+    assert (a.last is None) == (b.last is None)
+    if a.last is not None:
+        assert a.last.time_s == b.last.time_s
+        assert np.allclose(a.last.angles_rad, b.last.angles_rad, rtol=0, atol=atol)
+        assert np.allclose(a.last.cov_rad2, b.last.cov_rad2, rtol=1e3 * atol, atol=0)
+    for x, y in ((a.prior_angles_rad, b.prior_angles_rad), (a.start, b.start),
+                 (a.velocity_rad_s, b.velocity_rad_s)):
+        assert (x is None and y is None) or np.allclose(x, y, rtol=0, atol=atol)
 
 
 def test_a_dim_displaced_glint_is_flagged_and_the_band_done_again_without_it(band):
@@ -181,9 +172,9 @@ def test_a_dim_displaced_glint_is_flagged_and_the_band_done_again_without_it(ban
     assert np.allclose(out.cornea_center_m, ref.cornea_center_m, rtol=0, atol=TOL.refit_center_m)
     _same_state(after, ref_after, atol=TOL.refit_center_m / r_co)
     keep = ~bad
-    glints = tr._glints(sample.glints_px[keep], sample.light_index[keep])
+    glints = tr.context.band_glints(sample.glints_px[keep], sample.light_index[keep])
     est = polynomial_gaze(tr.setup, cal, glints, mapping=tr.mapping,
-                          start=out.cornea_center_m, problems=tr._problems)
+                          start=out.cornea_center_m, problems=tr.context.problems)
     assert np.allclose(out.cornea_center_m, est.cornea_center_m[0], rtol=0,
                        atol=TOL.refit_center_m)
 
@@ -193,15 +184,13 @@ def test_a_band_done_again_counts_once_and_follows_from_the_first_pass(band):
     sample = _cut(clean, 2, 0.6)
     flux = _expected(tr, cal, sample)
     flux[2] *= 0.5
-    before, counts = _state(tr), dict(tr.counts)
-    _restore(tr, (None, None, None, None))  # a cold band: the first pass searches
-    tr._flag_cut = True
+    before, counts = tr.state, dict(tr.counts)
+    tr.state = StreamState()  # a cold band: the first pass searches
     try:
-        out = tr._band(sample.frame_index, sample.glints_px, _band_of(tr, sample), sample.time_s,
-                       flux)
+        out = tr.band(sample.frame_index, sample.glints_px, _band_of(tr, sample), sample.time_s,
+                      flux)
     finally:
-        tr._flag_cut = False
-        _restore(tr, before)
+        tr.state = before
     assert out.ok and out.flux_flagged.size == 1
     got = {k: tr.counts[k] - counts[k] for k in counts}
     # Searched once, then identified again by the cheap path from the first pass's rotation;
@@ -217,7 +206,7 @@ def test_a_prior_assisted_band_is_fitted_again_with_its_prior(band):
                    light_index=clean.light_index[:k], confidence=clean.confidence[:k])
     flux = _expected(tr, cal, four)
     flux[2] *= 0.4
-    t = tr._state[0] + 1.0e-3  # the next band, 1 ms after the stream's last sample
+    t = tr.state.last.time_s + 1.0e-3  # the next band, 1 ms after the stream's last sample
     drop = np.arange(k) == 2
     out, after, ref, ref_after = _flagged_and_reference(tr, four, four.glints_px, flux, drop, t)
     assert out.ok and out.prior_assisted and ref.prior_assisted
@@ -229,8 +218,8 @@ def test_a_prior_assisted_band_is_fitted_again_with_its_prior(band):
 
 def test_too_few_glints_left_without_a_prior_is_a_nan_sample_with_a_reason(band):
     tr, cal, sample = band
-    before = _state(tr)
-    _restore(tr, (None, None, None, None))
+    before = tr.state
+    tr.state = StreamState()
     try:
         flux = _expected(tr, cal, sample)
         g = sample.glints_px.copy()
@@ -241,11 +230,9 @@ def test_too_few_glints_left_without_a_prior_is_a_nan_sample_with_a_reason(band)
         turn = np.linspace(0.0, 2.0 * np.pi, many.sum(), endpoint=False)
         g[many] += 0.9 * np.stack([np.cos(turn), np.sin(turn)], axis=1)
         flux[many] *= 0.3
-        tr._flag_cut = True
-        out = tr._band(sample.frame_index, g, _band_of(tr, sample), sample.time_s, flux)
+        out = tr.band(sample.frame_index, g, _band_of(tr, sample), sample.time_s, flux)
     finally:
-        tr._flag_cut = False
-        _restore(tr, before)
+        tr.state = before
     if out.flux_flagged.size == 0:  # the cut glints pulled the fit too far to stand out
         pytest.fail(f"nothing flagged: {out.reason}")
     assert not out.ok and out.reason.startswith("flux_cut_glints_")
@@ -300,10 +287,10 @@ def test_calibration_file_round_trip_and_old_files(setup):
         Tracker(setup, short, "polynomial", flag_cut_glints=True)
     # By default the tracker flags where the calibration has the rig's glint flux.
     fluxed = replace(cal, glint_flux=gf)
-    assert Tracker(setup, fluxed, "polynomial")._flag_cut
-    assert not Tracker(setup, fluxed, "polynomial", flag_cut_glints=False)._flag_cut
-    assert not Tracker(setup, cal, "polynomial")._flag_cut
-    assert not Tracker(setup, short, "polynomial")._flag_cut
+    assert Tracker(setup, fluxed, "polynomial").flags_cut_glints
+    assert not Tracker(setup, fluxed, "polynomial", flag_cut_glints=False).flags_cut_glints
+    assert not Tracker(setup, cal, "polynomial").flags_cut_glints
+    assert not Tracker(setup, short, "polynomial").flags_cut_glints
 
 
 @pytest.mark.parametrize("value, key", [

@@ -1,4 +1,4 @@
-"""A searched band's estimate by the compiled small fit (:mod:`estimator.estimates`) against
+"""A searched band's estimate by the compiled small fit (:mod:`estimator.tracking.estimates`) against
 the batched fits of :mod:`estimator.gaze` it stands in for: the same cornea centre and screen
 point on noisy glints of random gazes, both methods; None where the batched fits would refuse
 (a residual above the limit), so that they decide and name the failure."""
@@ -6,11 +6,10 @@ point on noisy glints of random gazes, both methods; None where the batched fits
 import numpy as np
 import pytest
 
-from estimator.estimates import searched_estimate
 from estimator.gaze import calibrated_problems, geometric_gaze, polynomial_gaze
-from estimator.geometry import camera_arrays, project_glints
+from estimator.geometry import project_glints
 from estimator.matching import kernels
-from estimator.tracker import MAX_RESIDUAL_PX, Tracker
+from estimator.tracking import MAX_RESIDUAL_PX, Tracker, searched_estimate
 from tests.estimator.test_tracker import calibration, setup  # noqa: F401 fixtures
 
 pytestmark = pytest.mark.skipif(not kernels.ENABLED, reason="Numba is not installed")
@@ -34,7 +33,6 @@ def identified(setup, rng):
 def test_the_small_fit_estimate_is_the_batched_one(setup, calibration, method):  # noqa: F811
     problems = calibrated_problems(setup, calibration)
     tr = Tracker(setup, calibration, method)
-    arrays = camera_arrays(setup.camera)
     rng = np.random.default_rng(12)
     n = setup.lights_world_m.shape[0]
     for _ in range(25):
@@ -46,8 +44,7 @@ def test_the_small_fit_estimate_is_the_batched_one(setup, calibration, method): 
             ref = polynomial_gaze(setup, calibration, full, start=start, problems=problems)
         else:
             ref = geometric_gaze(setup, calibration, full, start=start, problems=problems)
-        got = searched_estimate(problems, method, g, lights, start, None, arrays, tr._gaze_point,
-                                MAX_RESIDUAL_PX)
+        got = searched_estimate(tr.context, g, lights, start, None)
         assert got is not None and ref.reason[0] == "ok"
         xy, center, rms, _ = got
         # Both stop within ~1e-9 m of one minimum (test_cheap_path): 1e-7 m of centre and
@@ -58,12 +55,9 @@ def test_the_small_fit_estimate_is_the_batched_one(setup, calibration, method): 
 
 
 def test_a_residual_above_the_limit_is_left_to_the_batched_fits(setup, calibration):  # noqa: F811
-    problems = calibrated_problems(setup, calibration)
     tr = Tracker(setup, calibration, "polynomial")
     rng = np.random.default_rng(13)
     g, lights, a = identified(setup, rng)
     g = g + rng.normal(0.0, 4.0 * MAX_RESIDUAL_PX, g.shape)  # wrong glints: px of residual
-    got = searched_estimate(problems, "polynomial", g, lights, None,
-                            setup.eye.cornea_center(*a), camera_arrays(setup.camera),
-                            tr._gaze_point, MAX_RESIDUAL_PX)
+    got = searched_estimate(tr.context, g, lights, None, setup.eye.cornea_center(*a))
     assert got is None

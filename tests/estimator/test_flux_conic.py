@@ -9,9 +9,8 @@ import pytest
 
 from estimator.calibration import Calibration, GlintFlux, model_flux
 from estimator.calibration.flux import conic_flux, fresnel_reflectance
-from estimator.cut_glints import flagged
 from estimator.geometry import conic_reflection_points
-from estimator.samples import GazeSample
+from estimator.tracking import GazeSample, flagged
 
 #: The model against the irradiance measured by moving the camera ±1 um across the reflected
 #: beam on the exact conic reflection (central differences): their truncation and the
@@ -172,7 +171,7 @@ def test_the_conic_tracker_does_a_band_again_without_the_cut_glint(setup):
     sample = _cut(clean, 2, 0.6)
     flux = _flux(s, cal, sample)
     flux[2] *= 0.5
-    bad = flagged(cal, s.camera, tr._problems.center.lights_world_m, sample, sample.glints_px,
+    bad = flagged(cal, s.camera, tr.context.problems.center.lights_world_m, sample, sample.glints_px,
                   flux)
     assert bad.tolist() == [i == 2 for i in range(sample.n_glints)]
     out, _, ref, _ = _flagged_and_reference(tr, sample, sample.glints_px, flux, bad)

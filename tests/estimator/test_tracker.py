@@ -138,7 +138,7 @@ def test_an_exception_inside_a_frame_does_not_stop_the_stream(setup, calibration
         def reset(self):
             pass
 
-    monkeypatch.setattr(tr, "_detector", Boom())
+    monkeypatch.setattr(tr, "detector", Boom())
     out = tr.process(frames[0][0], 0)
     assert out and all(s.reason == f"{INTERNAL_ERROR}:RuntimeError" for s in out)
     assert "detector exploded" in caplog.text

@@ -9,18 +9,22 @@ The batched fits of :mod:`estimator.gaze` (``polynomial_gaze``, ``geometric_gaze
 fit that does not converge, a residual above the tracker's limit, an angle past
 :data:`estimator.gaze.ANGLE_BOUND_RAD`, no screen point) these return None and the tracker
 runs the batched fits, which decide and name the failure; a conic calibration, whose cornea
-the small fit does not model, always takes them (the caller's choice). Without Numba the
-tracker does not call these (``fit_small`` would run the batched fit itself).
+the small fit does not model, always takes them (the caller's choice,
+:attr:`~estimator.tracking.BandContext.fast_fits`). Without Numba the tracker does not call
+these (``fit_small`` would run the batched fit itself).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .cornea import fit_small
-from .eye import gaze_direction
-from .gaze import ANGLE_BOUND_RAD
+from ..cornea import fit_small
+from ..eye import gaze_direction
+from ..gaze import ANGLE_BOUND_RAD
+from .context import MAX_RESIDUAL_PX
 from .samples import inverse_2x2
+
+__all__ = ["searched_estimate", "assisted_estimate"]
 
 
 def _orbit_center(orbit, angles):
@@ -28,17 +32,18 @@ def _orbit_center(orbit, angles):
     return orbit.eye_center_m + orbit.orbit_radius_m * gaze_direction(angles[0], angles[1])
 
 
-def searched_estimate(problems, method: str, glints_px, lights, start, match_center_m, arrays,
-                      gaze_point, max_residual_px: float):
+def searched_estimate(context, glints_px, lights, start, match_center_m):
     """(screen point, cornea centre, RMS px, the next band's start) of a searched band's
     identified glints (k, 2) of ``lights`` (k,), or None (the batched fits decide).
 
-    ``method`` "polynomial": the free centre (``problems.center``) from ``start`` (the last
-    estimate's centre) or, without one, the match's centre, as ``polynomial_gaze`` from the
-    stream's last centre; "geometric": the orbit (``problems.orbit``) from ``start`` (the
-    last estimate's angles, default the primary position), as ``geometric_gaze``.
-    ``gaze_point(center, angles)``: the tracker's screen point of an estimate."""
-    if method == "polynomial":
+    The gaze method of ``context`` (:class:`~estimator.tracking.BandContext`) "polynomial":
+    the free centre (``problems.center``) from ``start`` (the last estimate's centre) or,
+    without one, the match's centre ``match_center_m`` (3,), as ``polynomial_gaze`` from the
+    stream's last centre; "geometric": the orbit (``problems.orbit``) from ``start`` (the last
+    estimate's angles, default the primary position), as ``geometric_gaze``. Fits with an RMS
+    above :data:`~estimator.tracking.MAX_RESIDUAL_PX` are refused."""
+    problems, arrays, max_residual_px = context.problems, context.matcher.arrays, MAX_RESIDUAL_PX
+    if context.method == "polynomial":
         problem, model = problems.center, "center"
         x0 = match_center_m if start is None else start
     else:
@@ -54,18 +59,20 @@ def searched_estimate(problems, method: str, glints_px, lights, start, match_cen
         center, angles = _orbit_center(problem, fit.x), fit.x
     else:
         center, angles = fit.x, None
-    xy = gaze_point(center, angles)
+    xy = context.gaze_point(center, angles)
     if not np.isfinite(xy).all():
         return None
     return xy, center, float(fit.rms_px), fit.x
 
 
-def assisted_estimate(orbit, glints_px, lights, mean, cov, noise_px: float, arrays, gaze_point,
-                      max_residual_px: float):
+def assisted_estimate(context, glints_px, lights, mean, cov):
     """A prior-assisted band's (screen point, cornea centre, angles, RMS, the glints' JᵀJ) by
     the orbit fit with the prior that both gaze methods make, from the prior's mean (mean
-    (2,) rad, covariance ``cov`` (2, 2) rad², glint noise ``noise_px``), as
-    ``geometric_gaze`` with a prior; or None (the batched fits decide)."""
+    (2,) rad, covariance ``cov`` (2, 2) rad², glint noise: the ``context``'s
+    :class:`~estimator.tracking.BandPrior`), as ``geometric_gaze`` with a prior; or None (the
+    batched fits decide)."""
+    orbit, noise_px, arrays = context.problems.orbit, context.prior.noise_px, context.matcher.arrays
+    max_residual_px = MAX_RESIDUAL_PX
     inv = inverse_2x2(cov)  # σ² Σ⁻¹ in closed form (prior_information's eigh: ~60 us)
     if inv is None or not np.isfinite(inv).all():
         return None
@@ -75,7 +82,7 @@ def assisted_estimate(orbit, glints_px, lights, mean, cov, noise_px: float, arra
     if not (fit.ok and fit.rms_px <= max_residual_px and np.abs(fit.x).max() < ANGLE_BOUND_RAD):
         return None
     center = _orbit_center(orbit, fit.x)
-    xy = gaze_point(center, fit.x)
+    xy = context.gaze_point(center, fit.x)
     if not np.isfinite(xy).all():
         return None
     return xy, center, fit.x, float(fit.rms_px), fit.JtJ

@@ -23,11 +23,14 @@ import numpy as np
 
 import estimator.matching.kernels as match_kernels
 
-from .cornea import conic_glints
-from .eye import CORNEA_REFRACTIVE_INDEX
-from .geometry import camera_arrays, glints_one_pose
-from .geometry.compiled import glints_kernel
+from ..cornea import conic_glints
+from ..eye import CORNEA_REFRACTIVE_INDEX
+from ..geometry import camera_arrays, glints_one_pose
+from ..geometry.compiled import glints_kernel
 from .samples import GazeSample
+
+__all__ = ["FLUX_FLAG_SD", "RESIDUAL_FLAG", "flagged", "same_points", "kept_detections",
+           "log_ratios", "flag_kernel"]
 
 #: A glint is taken as cut by a lash where both its log(measured / expected flux) is below
 #: -FLUX_FLAG_SD times the calibration's own spread (:attr:`GlintFlux.log_sd`, dimensionless

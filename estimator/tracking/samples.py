@@ -1,7 +1,8 @@
 """The tracker's value types: :class:`GazeSample` (one band's estimate) and :class:`BandPrior`
 (the motion model of the prior a sparse band borrows from the previous sample),
-:func:`failed_sample` (a NaN sample with a reason), the samples CSV (format ``scet-samples``,
-version 3) and :class:`TrackerInputError`.
+:func:`estimated_sample` and :func:`failed_sample` (the one way each is built), the samples
+CSV (format ``scet-samples``, version 3) and :class:`TrackerInputError`. Reason codes:
+:class:`estimator.reasons.Reason`.
 """
 
 from __future__ import annotations
@@ -14,40 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import TrackerInputError
-from .eye import EYE_SPEED_MAX_DEG_S
-from .formats import SAMPLES_FORMAT, SAMPLES_READABLE, SAMPLES_VERSION, atomic_write
+from ..errors import TrackerInputError
+from ..eye import EYE_SPEED_MAX_DEG_S
+from ..formats import SAMPLES_FORMAT, SAMPLES_READABLE, SAMPLES_VERSION, atomic_write
+from ..reasons import Reason
 
-
-
-#: Reason codes of a :class:`GazeSample` beyond those of :mod:`estimator.gaze` ("ok",
-#: "too_few_glints", "not_converged", "non_finite", "misses_screen") and of the matcher,
-#: which are prefixed "match_" ("match_too_few_glints", "match_ambiguous", ...).
-UNREADABLE_FRAME = "unreadable_frame"
-WRONG_FRAME_SIZE = "wrong_frame_size"
-SATURATED_FRAME = "saturated_frame"
-MISSING_FRAME = "missing_frame"
-INTERNAL_ERROR = "internal_error"
-RESIDUAL_TOO_LARGE = "residual_too_large"
-#: A band's own identification puts the eye further from the previous sample than it can turn
-#: in the time between them (``estimator.tracker.JUMP_AGE_S``, ``JUMP_SLACK_DEG``).
-IMPLAUSIBLE_JUMP = "implausible_jump"
-#: No eye rotation within that turn of a sample under ``JUMP_AGE_S`` old can have
-#: ``MIN_GLINTS`` of the band's detections matched (its glints fall elsewhere: the top rows of
-#: a frame while the eye looks down, a band of lid clutter): the band is not searched (a search
-#: could match it only at a rotation :data:`IMPLAUSIBLE_JUMP` rejects) and is left to the prior.
-OUT_OF_REACH = "band_out_of_reach"
-#: Prefix of the reason of a band that failed when done again without its glints cut by a lash
-#: (``estimator.cut_glints``): ``flux_cut_glints_<reason>``, e.g.
-#: ``flux_cut_glints_match_too_few_glints``.
-FLUX_CUT_GLINTS = "flux_cut_glints"
-#: Prefix of the reason of a sparse band whose prior-assisted estimate failed too (e.g.
-#: "prior_ambiguous", "prior_residual_too_large"): a prior was there, it did not suffice.
-PRIOR_PREFIX = "prior_"
-#: Failures of a band's own identification, after which the band may still be identified with
-#: the prior (not a fit that failed on identified glints: those glints were the trouble).
-IDENTITY_FAILURES = frozenset({OUT_OF_REACH, "match_too_few_glints", "match_ambiguous",
-                               "match_no_hypothesis", "match_fit_failed", "too_few_glints"})
+__all__ = ["GazeSample", "BandPrior", "estimated_sample", "failed_sample", "inverse_2x2",
+           "SAMPLE_COLUMNS", "samples_csv", "write_samples_csv", "read_samples_csv",
+           "TrackerInputError"]
 
 
 def inverse_2x2(A, rcond: float = 1e-12):
@@ -160,11 +135,23 @@ class GazeSample:
 
     @property
     def ok(self) -> bool:
-        return self.reason == "ok"
+        return self.reason == Reason.OK
 
     @property
     def n_glints(self) -> int:
         return int(self.light_index.shape[0])
+
+
+def estimated_sample(frame_index: int, strobe_index: int, time_s: float, *, screen_xy_m,
+                     cornea_center_m, glints_px, light_index, residual_px: float, confidence,
+                     prior_assisted: bool = False) -> GazeSample:
+    """An accepted sample of band ``strobe_index`` of frame ``frame_index``: screen point (2,),
+    cornea centre (3,) and confidence (k,) copied (the caller's arrays stay its own), the
+    identified detections ``glints_px`` (k, 2) of lights ``light_index`` (k,), its fit's RMS
+    ``residual_px``."""
+    return GazeSample(frame_index, strobe_index, time_s, screen_xy_m.copy(),
+                      cornea_center_m.copy(), glints_px, light_index, float(residual_px),
+                      Reason.OK, confidence.copy(), prior_assisted=prior_assisted)
 
 
 def failed_sample(frame_index: int, strobe_index: int, time_s: float, reason: str,

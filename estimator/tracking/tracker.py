@@ -1,0 +1,270 @@
+"""The tracker on images: banded frames in, one gaze sample per lit band out.
+
+This is the thin orchestrator on top of the estimator (the pipeline that runs on the
+prototype). Per frame:
+
+1. :class:`estimator.glints.GlintDetector` (:func:`estimator.glints.detect_glints` with the noise
+   model kept over the stream) finds the glints and stamps each with its strobe.
+2. Glints are grouped by strobe; every band the banding model says lights visible rows
+   (:func:`estimator.banding.band_layout`) gives one sample, glints or not.
+3. :class:`estimator.matching.GlintMatcher` identifies the band's glints, from the previous
+   sample's eye rotation as prior (cold search for the first sample and after a failure). The
+   matcher predicts glints from the calibrated geometry (lighting pose, r_c, c_e, r_co).
+4. The cornea is fitted to the identified glints and mapped to the screen
+   (:func:`estimator.gaze.polynomial_gaze` or :func:`estimator.gaze.geometric_gaze`). A band
+   whose identification puts the eye further from a recent previous sample than it can turn
+   in between is NaN (``implausible_jump``): clutter matched to a chain of lights.
+5. Sparse bands (fewer than :data:`~estimator.tracking.MIN_GLINTS` glints, or whose identification failed) borrow
+   from the previous sample when it is recent (:class:`~estimator.tracking.BandPrior`): its eye rotation, with a
+   covariance grown by the motion model, is a Gaussian prior for identifying the few glints
+   (:meth:`estimator.matching.GlintMatcher.match_near`) and for the orbit fit, which one glint
+   then determines (the "ours + prior" rows of ``reports/paper-reproduction.md``). Such samples
+   carry ``prior_assisted=True``. A band without any glint stays NaN: no sample is invented.
+
+Each sample carries the strobe instant s_j + Δs / 2 of its pulse (Sec. 2.3 of the SCET paper:
+the time of a band is its pulse's, not the frame's), shifted by the frame's measured start
+when a timing sidecar gives one. A sample that cannot be estimated is NaN with a reason code;
+any exception raised inside a frame becomes NaN samples with a reason and a log record: the
+stream never stops half way.
+
+The band steps themselves are :mod:`estimator.tracking.bands`; the stream's state between
+bands is one immutable :class:`~estimator.tracking.StreamState`, which :attr:`Tracker.state`
+holds. Folders of frames (rendered datasets, prototype captures) are read and tracked by
+:mod:`estimator.folders`.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+
+import numpy as np
+
+from ..banding import band_rows, strobe_instant
+from ..calibration import Calibration
+from ..gaze import calibrated_problems
+from ..glints import NO_BAND, DetectionParams, GlintDetector
+from ..matching import BandFollower, FollowParams, GlintMatcher, MatchParams
+from ..reasons import Reason, flux_cut_failure, internal_error
+from ..setup import Setup
+from .bands import band_sample
+from .context import METHODS, MIN_GLINTS, BandContext
+from .cut_glints import flagged, kept_detections
+from .samples import BandPrior, GazeSample, failed_sample
+from .state import StreamState
+
+__all__ = ["Tracker", "SATURATED_FRAME_SHARE"]
+
+log = logging.getLogger(__name__)
+
+#: A frame with more than this share of its pixels at full scale is not an eye image the
+#: detector can read (a lamp in view, a failed exposure): its samples fail with
+#: ``saturated_frame`` rather than with whatever the clutter makes of them.
+SATURATED_FRAME_SHARE = 0.25
+
+
+class Tracker:
+    """Streaming gaze tracker on banded frames.
+
+    Parameters
+    ----------
+    setup : Setup
+        Camera, sensor and strobe timing, lights, eye model and screen.
+    calibration : Calibration
+        Lighting correction and r_c, plus the mapping (polynomial) or c_e, r_co (geometric).
+    method : {"polynomial", "geometric"}
+    mapping : str
+        Name of the calibration's mapping used by polynomial gaze.
+    detection : DetectionParams
+    matching : MatchParams
+    prior : BandPrior or None
+        Motion model of the prior sparse bands borrow from the previous sample; None turns
+        prior assistance off. It needs the calibration's eye centre and orbit radius (without
+        them there is no prior either).
+    cheap : bool
+        Identify a band from a recent sample with the cheap path
+        (:class:`estimator.matching.BandFollower`: one prediction, one gated assignment, one
+        small fit, verified) before the hypothesis search, which runs where it declines: the
+        first band, after a sample older than :data:`~estimator.tracking.JUMP_AGE_S`, and
+        wherever its checks fail. ``False`` runs the search on every band (the reference it is
+        compared with). Needs the calibration's eye centre and orbit radius and the
+        ``"orbit"`` model.
+    flag_cut_glints : bool or None
+        Drop glints whose flux says a lash cuts them and do the band again without them
+        (:meth:`band`, :mod:`estimator.tracking.cut_glints`; README "Moving lids, blinks and
+        lashes"). It needs the calibration's ``glint_flux`` for the rig's lights: ``True``
+        refuses a calibration without it, ``None`` (the default) flags where the calibration
+        has it (a calibration from images, spherical or conic), ``False`` never flags.
+
+    Attributes
+    ----------
+    context : BandContext
+        What every band step shares (setup, calibration, fit problems, matcher, follower).
+    state : StreamState
+        The stream's state after the last band (immutable; each band step returns the next).
+    detector : GlintDetector
+    flags_cut_glints : bool
+        Whether bands are checked for glints cut by a lash.
+    counts : dict
+        Dense bands identified by the cheap path ("cheap"), by the hypothesis search
+        ("search"), left to the prior unsearched ("unfillable"); bands done again without cut
+        glints ("again").
+    """
+
+    def __init__(self, setup: Setup, calibration: Calibration, method: str = "polynomial", *,
+                 mapping: str = "eq1_25", detection: DetectionParams = DetectionParams(),
+                 matching: MatchParams = MatchParams(), prior: BandPrior | None = BandPrior(),
+                 cheap: bool = True, flag_cut_glints: bool | None = None):
+        if method not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        if not isinstance(calibration, Calibration):
+            raise ValueError(f"calibration must be a Calibration, got {type(calibration).__name__}")
+        if method == "geometric" and not calibration.has_orbit:
+            raise ValueError("geometric gaze needs a calibration with the eye centre and orbit")
+        if method == "polynomial" and mapping not in calibration.mappings:
+            raise ValueError(f"the calibration has no mapping {mapping!r} "
+                             f"(has {sorted(calibration.mappings)})")
+        fluxed = calibration.flags_cut_glints(setup.lights.count)
+        if flag_cut_glints and not fluxed:
+            raise ValueError(f"flag_cut_glints needs a calibration with glint_flux for the "
+                             f"{setup.lights.count} lights (recalibrate)")
+        self.flags_cut_glints = fluxed if flag_cut_glints is None else bool(flag_cut_glints)
+        # Detection reuses the sensor's noise model from frame to frame (measured again every
+        # 30 frames, on a 5 % level drift, and after every reset of the stream).
+        self.detector = GlintDetector(setup, detection)
+        # Glints predicted from the calibrated geometry, not the nominal one: the lighting pose
+        # of the prototype is off by millimetres (a pixel or more per glint). One set of
+        # calibrated fit problems for the stream: the matcher's orbit fits and the gaze fits of
+        # every band use them.
+        problems = calibrated_problems(setup, calibration)
+        matcher = GlintMatcher(setup, matching, calibration=calibration, problem=problems.orbit)
+        prior = prior if calibration.has_orbit and matching.model == "orbit" else None
+        gaze_map = None if method == "geometric" else calibration.mappings[mapping]
+        follower = None
+        if cheap and prior is not None and (gaze_map is None or gaze_map.n_features == 3):
+            follower = BandFollower(matcher, FollowParams(min_matches=MIN_GLINTS))
+        self.context = BandContext(setup, calibration, method, mapping, gaze_map, problems,
+                                   matcher, follower, prior)
+        self.counts = {"cheap": 0, "search": 0, "unfillable": 0, "again": 0}
+        self.reset()
+
+    # The context's parts under their old names (read-only).
+    setup = property(lambda self: self.context.setup)
+    calibration = property(lambda self: self.context.calibration)
+    method = property(lambda self: self.context.method)
+    mapping = property(lambda self: self.context.mapping)
+    matcher = property(lambda self: self.context.matcher)
+    follower = property(lambda self: self.context.follower)
+    prior = property(lambda self: self.context.prior)
+
+    def reset(self) -> None:
+        """Forget the previous sample (the next band is matched cold, and has no prior) and the
+        noise model (a frame that failed as a whole often means the exposure changed)."""
+        self.state = StreamState()
+        self.detector.reset()
+
+    def process(self, frame, frame_index: int, frame_start_s: float | None = None
+                ) -> list[GazeSample]:
+        """Samples of one frame: one per band the strobe lights visible rows of.
+
+        Parameters
+        ----------
+        frame : (H, W) uint8, uint16 or float
+            Sensor output (DN). ``None`` or an array of the wrong shape gives NaN samples
+            (``unreadable_frame``, ``wrong_frame_size``).
+        frame_index : int
+        frame_start_s : float, optional
+            Measured start t0_f of the frame (timing sidecar); default f Δt. Sample times are
+            the banding model's strobe instants shifted by t0_f - f Δt.
+
+        Returns
+        -------
+        list of GazeSample, in strobe order.
+        """
+        frame_index = int(frame_index)
+        sensor, strobe = self.setup.sensor, self.setup.strobe
+        shift = 0.0 if frame_start_s is None else float(frame_start_s) - frame_index * sensor.frame_period_s
+        pulses, starts, first, last = band_rows(sensor, strobe, frame_index)
+        bands = [(int(j), (int(a), int(b))) for j, a, b in zip(pulses, first, last)]
+        times = (strobe_instant(starts, strobe.pulse_s) + shift).tolist()
+        try:
+            reason = self.frame_check(frame)
+            if reason is not None:
+                self.reset()
+                return [failed_sample(frame_index, j, t, reason) for (j, _), t in zip(bands, times)]
+            det = self.detector(frame, frame_index)
+            det = det.select(~det.has(NO_BAND))
+            glints, strobes, flux = det.glints_px, det.strobe_index, det.intensity
+            flag = self.flags_cut_glints
+            return [self.band(frame_index, self.of_strobe(glints, strobes, b[0]), b, t,
+                              flux[strobes == b[0]] if flag else None)
+                    for b, t in zip(bands, times)]
+        except Exception as exc:  # the stream must survive any one frame; the reason is logged
+            # A bug, not bad input: logged with its traceback, counted by the run's summary.
+            log.error("frame %d: internal error %s: %s; its samples are NaN (%s)", frame_index,
+                      type(exc).__name__, exc, Reason.INTERNAL_ERROR, exc_info=True)
+            self.reset()
+            return [failed_sample(frame_index, j, t, internal_error(exc))
+                    for (j, _), t in zip(bands, times)]
+
+    @staticmethod
+    def of_strobe(glints_px, strobes, j: int) -> np.ndarray:
+        """The detections (k, 2) of ``glints_px`` (m, 2) stamped with strobe j (``strobes``
+        (m,))."""
+        return glints_px[strobes == j]
+
+    def frame_check(self, frame) -> str | None:
+        """Why ``frame`` cannot be tracked (a :class:`~estimator.reasons.Reason`), or None."""
+        if frame is None:
+            return Reason.UNREADABLE_FRAME
+        a = np.asarray(frame)
+        if a.shape != (self.setup.camera.height_px, self.setup.camera.width_px):
+            return Reason.WRONG_FRAME_SIZE
+        full = 255 if a.dtype == np.uint8 else 2 ** self.setup.sensor.bit_depth - 1
+        # The maximum first: a frame without a full-scale pixel (the common case) is not counted.
+        if a.max() >= full and np.count_nonzero(a >= full) > SATURATED_FRAME_SHARE * a.size:
+            return Reason.SATURATED_FRAME
+        return None
+
+    def band(self, f: int, g, band, time_s: float, flux=None) -> GazeSample:
+        """Sample of a band of frame f from its detections g (k, 2); band (pulse, (first row,
+        last row)); advances :attr:`state`. With the detections' flux (k,) (where cut glints
+        are flagged) a band with a flagged glint is done again, from the stream's state before
+        it with the first pass's rotation as the prior of its identification, without the
+        flagged detections (:func:`estimator.tracking.cut_glints.flagged`; the sample records
+        their lights in ``flux_flagged``, a failure's reason is prefixed
+        ``flux_cut_glints_``)."""
+        before = self.state
+        if flux is None:
+            sample, self.state = band_sample(self.context, before, f, g, band, time_s,
+                                             self.counts)
+            return sample
+        counts = dict(self.counts)
+        sample, after = band_sample(self.context, before, f, g, band, time_s, self.counts)
+        self.state = after
+        if not sample.ok:
+            return sample
+        ctx = self.context
+        bad = flagged(ctx.calibration, ctx.setup.camera, ctx.problems.center.lights_world_m,
+                      sample, g, flux, ctx.matcher.arrays)
+        if not bad.any():
+            return sample
+        # The first pass's rotation seeds the second (the cheap path then identifies the band
+        # from it instead of searching again); the rest of the state is the one before the band.
+        if after.prior_angles_rad is not None:
+            before = replace(before, prior_angles_rad=after.prior_angles_rad)
+        self.counts.clear()
+        self.counts.update(counts)  # the band counts once, by the path of its second pass
+        self.counts["again"] += 1
+        return self.without(f, g, band, time_s, sample, bad, before)
+
+    def without(self, f: int, g, band, time_s: float, sample: GazeSample, bad,
+                state: StreamState) -> GazeSample:
+        """The band of ``sample`` done again from ``state`` without its glints ``bad`` (k,)
+        bool; advances :attr:`state`."""
+        kept = g[kept_detections(g, sample.glints_px[bad])]
+        again, self.state = band_sample(self.context, state, f, kept, band, time_s, self.counts)
+        lights = sample.light_index[bad]
+        if again.ok:
+            return replace(again, flux_flagged=lights)
+        return replace(again, reason=flux_cut_failure(again.reason), flux_flagged=lights)
