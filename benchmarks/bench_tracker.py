@@ -92,8 +92,20 @@ def synthetic_frames(setup, n: int, rng):
     return moving_sequence(setup, n, rng)[0]
 
 
-def run(tracker, frames):
-    """Samples and per-frame seconds of one pass."""
+def run(tracker, frames, band_s=None):
+    """Samples and per-frame seconds of one pass; with a list ``band_s``, the seconds of every
+    band step (:meth:`Tracker.band`: from the band's detections to its sample) appended."""
+    if band_s is not None:
+        step = tracker.band
+
+        def timed_band(*a, **k):
+            t = time.perf_counter()
+            try:
+                return step(*a, **k)
+            finally:
+                band_s.append(time.perf_counter() - t)
+
+        tracker.band = timed_band
     samples, lat = [], []
     for f, t0, img in frames:
         t = time.perf_counter()
@@ -160,9 +172,11 @@ def breakdown(setup, cal, method, frames, compiled=True) -> dict:
     m = tr.matcher
     m._assign = _Timed(m._assign, totals, "assign")
     m._final_assign = _Timed(m._final_assign, totals, "assign")
-    saved = (follow_module.fit_small, context_module.screen_intersection)
+    saved = (follow_module.fit_small, context_module.BandContext.gaze_point)
     follow_module.fit_small = estimates_module.fit_small = _Timed(saved[0], totals, "fit")
-    context_module.screen_intersection = _Timed(saved[1], totals, "map")
+    if method == "geometric":  # polynomial gaze's map is its mapping's (timed below)
+        timed_point = _Timed(saved[1], totals, "map")
+        context_module.BandContext.gaze_point = lambda self, c, a: timed_point(self, c, a)
     tr.of_strobe = _Timed(tr.of_strobe, totals, "group")
     m.match = _Timed(m.match, totals, "search")
     m.match_near = _Timed(m.match_near, totals, "prior")
@@ -173,7 +187,7 @@ def breakdown(setup, cal, method, frames, compiled=True) -> dict:
         samples, _ = run(tr, frames)
         wall = time.perf_counter() - t
     finally:
-        follow_module.fit_small, context_module.screen_intersection = saved
+        follow_module.fit_small, context_module.BandContext.gaze_point = saved
         estimates_module.fit_small = saved[0]
     totals["other"] = wall - sum(totals[s] for s in STAGES if s != "other")
     return {"samples": len(samples), "wall": wall, **totals}
@@ -306,6 +320,7 @@ def main(argv=None):
             run(Tracker(setup, cal, method, cheap=cheap), frames[:3])
         rates = {False: [], True: [], "numpy": []}
         lats = {False: [], True: [], "numpy": []}
+        bands = {False: [], True: [], "numpy": []}
         agree, agree_numpy, counts = True, True, None
         for _ in range(args.rounds):
             out = {}
@@ -314,7 +329,7 @@ def main(argv=None):
                 match_kernels.ENABLED = cheap != "numpy" and KERNELS
                 try:
                     tr = Tracker(setup, cal, method, cheap=bool(cheap))
-                    samples, lat = run(tr, frames)
+                    samples, lat = run(tr, frames, bands[cheap])
                 finally:
                     match_kernels.ENABLED = KERNELS
                 rates[cheap].append(len(samples) / lat.sum())
@@ -330,9 +345,14 @@ def main(argv=None):
         for cheap, name in ((False, "search every band"), ("numpy", "cheap path, numpy matcher"),
                             (True, "cheap path")):
             r, lat = np.array(rates[cheap]), np.concatenate(lats[cheap]) * 1e3
+            band = np.array(bands[cheap]) * 1e3
+            # The rest of a frame's time (detection, grouping, the band layout) per band.
+            rest = (lat.sum() - band.sum()) / max(len(band), 1)
             print(f"tracker {method}, {name}: {np.median(r):.0f} samples/s "
                   f"(rounds {r.min():.0f}-{r.max():.0f}), latency p50 {np.percentile(lat, 50):.2f} ms, "
-                  f"p99 {np.percentile(lat, 99):.2f} ms per frame")
+                  f"p99 {np.percentile(lat, 99):.2f} ms per frame; band step p50 "
+                  f"{np.percentile(band, 50):.3f} ms, p99 {np.percentile(band, 99):.3f} ms "
+                  f"(+ {rest:.3f} ms a band of detection and the frame's glue)")
         print(f"  cheap / search: {np.median(ratio):.1f}x (rounds {ratio.min():.1f}-{ratio.max():.1f}); "
               f"bands: {counts['cheap']} cheap, {counts['search']} searched, {counts['unfillable']} "
               f"left to the prior unsearched; {ok}/{len(out[True])} "

@@ -20,7 +20,7 @@ What one band hands the next:
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -76,7 +76,7 @@ class StreamState:
         ``last``, is kept; it grows with its age)."""
         if self.prior_angles_rad is None and self.start is None:
             return self
-        return replace(self, prior_angles_rad=None, start=None)
+        return StreamState(None, None, self.last, self.velocity_rad_s)
 
     def estimated(self, time_s: float, angles_rad, cov_rad2, *, prior_angles_rad,
                   start) -> StreamState:
