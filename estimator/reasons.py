@@ -47,6 +47,9 @@ class Reason(StrEnum):
     WRONG_FRAME_SIZE = "wrong_frame_size"
     SATURATED_FRAME = "saturated_frame"
     MISSING_FRAME = "missing_frame"
+    #: A frame whose index is not after the last one the tracker took (it came late, out of
+    #: order, or twice): its bands are NaN and the stream goes on from the newer frame.
+    FRAME_OUT_OF_ORDER = "frame_out_of_order"
     #: Prefix of :func:`internal_error`.
     INTERNAL_ERROR = "internal_error"
     #: A fit on identified glints whose RMS residual is above the tracker's limit.

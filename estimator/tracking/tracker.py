@@ -105,6 +105,8 @@ class Tracker:
     detector : GlintDetector
     flags_cut_glints : bool
         Whether bands are checked for glints cut by a lash.
+    last_frame_index : int or None
+        The last frame taken.
     counts : dict
         Dense bands identified by the cheap path ("cheap"), by the hypothesis search
         ("search"), left to the prior unsearched ("unfillable"); bands done again without cut
@@ -146,6 +148,8 @@ class Tracker:
         self.context = BandContext(setup, calibration, method, mapping, gaze_map, problems,
                                    matcher, follower, prior)
         self.counts = {"cheap": 0, "search": 0, "unfillable": 0, "again": 0}
+        #: The last frame index taken (a frame not after it is ``frame_out_of_order``).
+        self.last_frame_index: int | None = None
         self.reset()
 
     # The context's parts under their old names (read-only).
@@ -173,6 +177,9 @@ class Tracker:
             Sensor output (DN). ``None`` or an array of the wrong shape gives NaN samples
             (``unreadable_frame``, ``wrong_frame_size``).
         frame_index : int
+            Frames come in increasing order; gaps (dropped frames) are fine, the prior ages
+            over them. A frame not after the last one taken gives NaN samples
+            (``frame_out_of_order``) and leaves the stream as it was.
         frame_start_s : float, optional
             Measured start t0_f of the frame (timing sidecar); default f Δt. Sample times are
             the banding model's strobe instants shifted by t0_f - f Δt.
@@ -187,6 +194,14 @@ class Tracker:
         pulses, starts, first, last = band_rows(sensor, strobe, frame_index)
         bands = [(int(j), (int(a), int(b))) for j, a, b in zip(pulses, first, last)]
         times = (strobe_instant(starts, strobe.pulse_s) + shift).tolist()
+        if self.last_frame_index is not None and frame_index <= self.last_frame_index:
+            # The stream's state is the newer frame's: an older one cannot be followed from
+            # it (its bands would precede the prior), nor may it undo it.
+            log.warning("frame %d after frame %d: out of order, its samples are NaN (%s)",
+                        frame_index, self.last_frame_index, Reason.FRAME_OUT_OF_ORDER)
+            return [failed_sample(frame_index, j, t, Reason.FRAME_OUT_OF_ORDER)
+                    for (j, _), t in zip(bands, times)]
+        self.last_frame_index = frame_index
         try:
             reason = self.frame_check(frame)
             if reason is not None:

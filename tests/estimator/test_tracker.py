@@ -328,3 +328,24 @@ def test_samples_csv_marks_prior_assisted_samples_and_reads_version_1(tmp_path, 
     (tmp_path / "v9.csv").write_text("# scet-samples 9\nframe\n")
     with pytest.raises(TrackerInputError, match="v9.csv"):
         read_samples_csv(tmp_path / "v9.csv")
+
+
+def test_a_late_dropped_or_out_of_order_frame_is_flagged_not_a_lost_stream(setup, calibration,
+                                                                         frames):
+    """Frames 0, 2 (1 dropped), 1 (late: out of order), 2 again, 3: the old ones are NaN with
+    their reason, the stream goes on from the newest, and the gap costs no stall."""
+    imgs = frames[0]
+    tr = Tracker(setup, calibration)
+    first = tr.process(imgs[0], 0)
+    after_gap = tr.process(imgs[2], 2)
+    state = tr.state
+    late = tr.process(imgs[1], 1)
+    again = tr.process(imgs[2], 2)
+    assert tr.state is state  # the old frames changed nothing
+    assert late and all(s.reason == "frame_out_of_order" and np.isnan(s.screen_xy_m).all()
+                        for s in late + again)
+    assert [s.frame_index for s in late] == [1] * len(late)
+    assert any(s.ok for s in first) and any(s.ok for s in after_gap)
+    yaw, pitch = setup.eye.angles_toward(frames[1][None])
+    nxt = draw_frame(setup, 3, float(yaw[0]), float(pitch[0]), np.random.default_rng(2))
+    assert any(s.ok for s in tr.process(nxt, 3))
