@@ -14,7 +14,7 @@ and predictions: as on an install without Numba) and
 ``cheap=True`` alternated over ``--rounds`` rounds on the same frames (the machine's speed
 drifts: ratios are per round):
 samples/s (every lit band is a sample, NaN or not; and the estimates/s of the estimated
-ones), per-frame latency p50/p99 (frame in, its samples out), whether both give the same
+ones), per-frame latency p50/p99 (frame in, its samples out, wall time), whether both give the same
 samples (reasons; identities and estimates to 1e-6 m where estimated), where each band's
 microseconds go on the cheap path, and the estimated Raspberry Pi 3B+ figure.
 With ``--conic Q`` it measures instead what the estimator's conic cornea option costs: the
@@ -89,10 +89,10 @@ PI_SOURCE = "shared/HARDWARE.md Sec. 12 (planning rule: x86 single-thread time x
 #: What a Raspberry Pi must sustain: a 60 Hz camera with 16 pulses a frame gives 960 bands
 #: (samples) a second, and 60 frames a second.
 PI_NEEDED_SAMPLES_S, PI_NEEDED_FRAMES_S = 960.0, 60.0
-#: The cheap path's samples/s on the synthetic frames (60 frames, --clock cpu) of a desktop x86
-#: core, measured at this version (hardware/README.md, "Real time on a Raspberry Pi"): the
+#: The cheap path's samples/s on the synthetic frames (60 frames, 3 rounds, --clock cpu, the
+#: median) of a desktop x86 core, measured at this version (hardware/README.md, "Real time on a Raspberry Pi"): the
 #: figures an ARM run is compared with, through the planning rule.
-REFERENCE_X86 = {"polynomial": 3400.0, "geometric": 3700.0}
+REFERENCE_X86 = {"polynomial": 3326.0, "geometric": 3118.0}
 #: The clock of every timing: wall time (default), or the process's CPU time (``--clock
 #: cpu``: on a machine shared with other work, what the tracker itself costs one core).
 clock = time.perf_counter
@@ -110,25 +110,29 @@ def synthetic_frames(setup, n: int, rng):
     return moving_sequence(setup, n, rng)[0]
 
 
-def run(tracker, frames, band_s=None):
-    """Samples and per-frame seconds of one pass; with a list ``band_s``, the seconds of every
-    band step (:meth:`Tracker.band`: from the band's detections to its sample) appended."""
+def run(tracker, frames, band_s=None, wall_s=None):
+    """Samples and per-frame seconds (:data:`clock`) of one pass; with lists ``band_s`` and
+    ``wall_s``, the wall seconds of every band step (:meth:`Tracker.band`: from the band's
+    detections to its sample) and of every frame appended (latencies are wall time: the CPU
+    clock of a process ticks too coarsely on some kernels, 4 ms here, to time one band)."""
     if band_s is not None:
         step = tracker.band
 
         def timed_band(*a, **k):
-            t = clock()
+            t = time.perf_counter()
             try:
                 return step(*a, **k)
             finally:
-                band_s.append(clock() - t)
+                band_s.append(time.perf_counter() - t)
 
         tracker.band = timed_band
     samples, lat = [], []
     for f, t0, img in frames:
-        t = clock()
+        t, w = clock(), time.perf_counter()
         samples.extend(tracker.process(img, f, t0))
         lat.append(clock() - t)
+        if wall_s is not None:
+            wall_s.append(time.perf_counter() - w)
     return samples, np.array(lat)
 
 
@@ -343,8 +347,8 @@ def main(argv=None):
         for cheap in (False, True):  # compile the cheap path's kernels before timing
             run(Tracker(setup, cal, method, cheap=cheap), frames[:3])
         rates = {False: [], True: [], "numpy": []}
-        lats = {False: [], True: [], "numpy": []}
         bands = {False: [], True: [], "numpy": []}
+        walls = {False: [], True: [], "numpy": []}
         agree, agree_numpy, counts = True, True, None
         for _ in range(args.rounds):
             out = {}
@@ -353,11 +357,10 @@ def main(argv=None):
                 match_kernels.ENABLED = cheap != "numpy" and KERNELS
                 try:
                     tr = Tracker(setup, cal, method, cheap=bool(cheap))
-                    samples, lat = run(tr, frames, bands[cheap])
+                    samples, lat = run(tr, frames, bands[cheap], walls[cheap])
                 finally:
                     match_kernels.ENABLED = KERNELS
                 rates[cheap].append(len(samples) / lat.sum())
-                lats[cheap].append(lat)
                 out[cheap] = samples
                 if cheap is True:
                     counts = dict(tr.counts)
@@ -368,9 +371,9 @@ def main(argv=None):
         ratio_numpy = np.array(rates[True]) / np.array(rates["numpy"])
         for cheap, name in ((False, "search every band"), ("numpy", "cheap path, numpy matcher"),
                             (True, "cheap path")):
-            r, lat = np.array(rates[cheap]), np.concatenate(lats[cheap]) * 1e3
+            r, lat = np.array(rates[cheap]), np.array(walls[cheap]) * 1e3
             band = np.array(bands[cheap]) * 1e3
-            # The rest of a frame's time (detection, grouping, the band layout) per band.
+            # The rest of a frame's time (detection, grouping, the band layout) per band (wall).
             rest = (lat.sum() - band.sum()) / max(len(band), 1)
             print(f"tracker {method}, {name}: {np.median(r):.0f} samples/s "
                   f"(rounds {r.min():.0f}-{r.max():.0f}), latency p50 {np.percentile(lat, 50):.2f} ms, "
