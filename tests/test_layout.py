@@ -40,7 +40,7 @@ LAYERS = {
         {"simulate", "band_diagram"},
         {"dataset"},
         {"validate", "reproduce", "design", "study", "compare"},
-        {"cli", "cli_data", "cli_progress", "cli_studies", "runner", "__main__"},
+        {"cli", "cli_data", "cli_progress", "cli_scene", "cli_studies", "runner", "__main__"},
     ],
 }
 #: What each package may import of the other packages and heavy libraries.
