@@ -10,6 +10,7 @@ The calibration here is the ideal one (the scene's own geometry), so that the ex
 no calibration frames; the accuracy regression (``scet validate``) calibrates from renders.
 """
 
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -55,3 +56,5 @@ ax.set_xlabel("strobe instant (ms)")
 ax.set_ylabel("gaze error (deg)")
 ax.set_title("one sample per band, 3 rendered frames")
 fig.tight_layout()
+
+shutil.rmtree(work)  # the renders were only for this page
