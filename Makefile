@@ -1,4 +1,5 @@
-# SCET: `make demo` runs the main job on the default scene, `make test` runs the test suite.
+# SCET: `make demo` runs the main job on the default scene, `make test` runs the test suite,
+# `make docs` builds the documentation site into docs/_build/html (warnings are errors).
 # Both set everything up first: a virtual environment in .venv with the package and all its
 # extras, and (as root, on Debian) libllvm19 for Mitsuba's LLVM backend and the AVR toolchain
 # (gcc-avr, avr-libc, simavr) for the strobe firmware. `make firmware` builds its .hex;
@@ -16,7 +17,7 @@ PYTEST_ARGS ?=
 # Small matrices only: threaded BLAS on 2 cores oversubscribes (measured 40x slower joint fits).
 export OPENBLAS_NUM_THREADS ?= 1
 
-.PHONY: setup demo test test-base test-slow bench firmware clean
+.PHONY: setup demo test test-base test-slow bench firmware docs clean
 
 setup: $(STAMP)
 
@@ -59,6 +60,12 @@ test-base: $(BASE_STAMP)
 	$(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "error: pytest collected no tests" >&2; exit 1; fi; exit $$rc
 
+# The documentation site: Sphinx (the 'docs' extra, part of 'all'), warnings as errors, the
+# gallery's examples executed (a few small renders). SCET_DOCS_GALLERY=0 skips running them.
+docs: $(STAMP)
+	$(PY) -m sphinx -W --keep-going -q -b html docs docs/_build/html
+	@echo "documentation: docs/_build/html/index.html"
+
 test-slow: $(STAMP)
 	$(PY) -m pytest -m slow $(PYTEST_ARGS)
 
@@ -72,4 +79,5 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_cluster.py
 
 clean:
-	rm -rf $(VENV) $(BASE_VENV) build *.egg-info .pytest_cache .hypothesis hardware/firmware/build
+	rm -rf $(VENV) $(BASE_VENV) build *.egg-info .pytest_cache .hypothesis hardware/firmware/build \
+	  docs/_build docs/auto_examples docs/sg_execution_times.rst

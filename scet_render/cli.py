@@ -14,6 +14,7 @@ import numpy as np
 
 from .cli_data import add_dataset_parsers, add_render_parser
 from .cli_progress import StageBars, print_table, progress_bar
+from .cli_scene import folder_scene
 from .runner import MAX_FRAMES, MAX_SEED, MAX_SPP, finite, integer, run
 
 
@@ -162,10 +163,9 @@ def cmd_export_mitsuba(args) -> int:
 def cmd_calibrate(args) -> int:
     from estimator.folders import calibrate_from_folder, save_calibration
     from estimator.inputs import input_files, refuse_overwriting_inputs
-    from estimator.scene import load_scene
 
     refuse_overwriting_inputs(args.out, input_files(args.dir))
-    setup = load_scene(args.scene)
+    setup = folder_scene(args.dir, args.scene, "scet calibrate")
     cal = calibrate_from_folder(args.dir, setup, cornea_model=args.cornea_model)
     path = save_calibration(cal, args.out)
     q = cal.quality
@@ -189,12 +189,11 @@ def cmd_compare(args) -> int:
 
     from estimator.folders import load_calibration
     from estimator.formats import atomic_write
-    from estimator.scene import load_scene
 
     from .compare import compare_capture
     from .compare.report import write_report
 
-    setup = load_scene(args.scene)
+    setup = folder_scene(args.dir, args.scene, "scet compare")
     cal = load_calibration(args.calibration) if args.calibration is not None else None
     bars = StageBars()
     try:
@@ -218,9 +217,8 @@ def cmd_compare(args) -> int:
 def cmd_track(args) -> int:
     from estimator.folders import track_folder
     from estimator.live import track_following
-    from estimator.scene import load_scene
 
-    setup = load_scene(args.scene)
+    setup = folder_scene(args.dir, args.scene, "scet track")
     cal = args.calibration  # the path: --out naming it is refused, errors name it
     bar, update = progress_bar(0, "frame", "track")
     try:
@@ -334,6 +332,9 @@ def build_parser() -> argparse.ArgumentParser:
                     help="print the traceback of an internal error instead of logging it to a file")
     sub = ap.add_subparsers(dest="command", required=True)
     scene_help = "scene file or built-in scene name (default: paper_sim)"
+    folder_scene_help = ("scene file or built-in scene name (default: the scene the folder "
+                         "records: its manifest.json, scene.toml or capture.json; a --scene "
+                         "that differs from it is used, with a warning)")
 
     p = sub.add_parser("scenes", help="list the built-in scenes")
     p.set_defaults(func=cmd_scenes)
@@ -378,7 +379,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("calibrate", help="calibrate from a folder of single-pulse calibration frames")
     p.add_argument("dir", type=Path, help="folder of frames (frames/NNNNNN.png, labels.jsonl, timing)")
-    p.add_argument("--scene", help=scene_help)
+    p.add_argument("--scene", help=folder_scene_help)
     p.add_argument("--out", type=Path, required=True, help="calibration file (JSON)")
     p.add_argument("--cornea-model", choices=("sphere", "conic"), default="sphere",
                    help="the tracker's cornea: the paper's sphere (default), or a conic about "
@@ -388,7 +389,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("track", help="track a folder of banded frames: one gaze sample per lit band")
     p.add_argument("dir", type=Path, help="folder of frames with a timing sidecar (or a rendered dataset)")
-    p.add_argument("--scene", help=scene_help)
+    p.add_argument("--scene", help=folder_scene_help)
     p.add_argument("--calibration", type=Path, required=True, help="calibration file from scet calibrate")
     p.add_argument("--method", choices=("polynomial", "geometric"), default="polynomial")
     p.add_argument("--out", type=Path, required=True, help="samples CSV")
@@ -410,12 +411,12 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("compare", help="a capture folder against renders of the same frames: "
                                        "timing, sensor, glints, background, tracker")
     p.add_argument("dir", type=Path, help="capture folder (capture.json, frames.jsonl, frames/)")
-    p.add_argument("--scene", help=scene_help)
+    p.add_argument("--scene", help=folder_scene_help)
     p.add_argument("--calibration", type=Path, help="calibration file (default: the scene's "
                                                      "nominal geometry)")
     p.add_argument("--method", choices=("polynomial", "geometric"), default="geometric")
     p.add_argument("--report-dir", type=Path, default=Path("reports"),
-                   help="where compare.md and compare/*.png go (default reports/)")
+                   help="where compare.md and its figures (compare/) go (default reports/)")
     p.add_argument("--frames", type=integer(1, 1000), default=8, help="banded frames compared")
     p.add_argument("--spp", type=integer(1, MAX_SPP), default=16)
     p.add_argument("--cornea", choices=("dielectric", "plain_dielectric", "conductor"),

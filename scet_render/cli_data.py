@@ -30,8 +30,8 @@ def cmd_render_calibration(args, setup) -> int:
     finally:
         bar.close()
     print(f"calibration frames {out}: {cols * rows} single-pulse frames of the eye fixating the "
-          f"{cols}x{rows} pattern (calibrate with: scet calibrate {out} --scene "
-          f"{args.scene or 'paper_sim'} --out calibration.json)")
+          f"{cols}x{rows} pattern, their scene in {out / 'scene.toml'} (calibrate with: scet "
+          f"calibrate {out} --out calibration.json)")
     return 0
 
 
@@ -105,6 +105,7 @@ def cmd_dataset(args) -> int:
 
 
 def cmd_score(args) -> int:
+    from .cli_scene import folder_scene
     from .validate import reasons_table, score_samples, score_table, write_score_report
 
     if args.markdown:
@@ -112,7 +113,8 @@ def cmd_score(args) -> int:
 
         refuse_overwriting_inputs(args.markdown, [*args.samples, *input_files(args.dataset)],
                                   "--markdown")
-    score = score_samples(args.samples, args.dataset)
+    setup = folder_scene(args.dataset, args.scene, "scet score")
+    score = score_samples(args.samples, args.dataset, setup=setup)
     print(score_table(score))
     print()
     print(reasons_table(score))
@@ -162,6 +164,9 @@ def add_dataset_parsers(sub) -> None:
     p = sub.add_parser("score", help="score samples CSVs against a rendered dataset's ground truth")
     p.add_argument("samples", type=Path, nargs="+", help="samples CSV files (one per method)")
     p.add_argument("dataset", type=Path, help="the dataset folder the samples were tracked from")
+    p.add_argument("--scene", help="scene file or built-in scene name (default: the scene the "
+                                   "dataset's manifest records; one that differs from it is "
+                                   "used, with a warning)")
     p.add_argument("--markdown", type=Path, help="write the tables (and a plot) to this .md file")
     p.add_argument("--no-plots", action="store_true", help="no figure beside --markdown")
     p.set_defaults(func=cmd_score)

@@ -44,7 +44,7 @@ LAYERS = {
         {"simulate", "band_diagram"},
         {"dataset"},
         {"validate", "reproduce", "design", "study", "compare"},
-        {"cli", "cli_data", "cli_progress", "cli_studies", "runner", "__main__"},
+        {"cli", "cli_data", "cli_progress", "cli_scene", "cli_studies", "runner", "__main__"},
     ],
     "hardware": [
         {"firmware", "mirror"},

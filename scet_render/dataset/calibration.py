@@ -15,8 +15,10 @@ from estimator.formats import FRAMES_DIR, LABELS_NAME, TIMING_NAME, atomic_write
 from estimator.setup import Setup
 
 from ..motion import fixation_sequence
+from .effective import DIFFERS_MARK, SCENE_NAME, effective_scene_text
 from .format import counts_png
 from .labels import frame_labels
+from .manifest import _scene_text
 
 #: Calibration fixation per target (s); one frame is rendered in its middle.
 CALIB_FIXATION_S = 0.1
@@ -24,18 +26,27 @@ CALIB_FIXATION_S = 0.1
 
 def render_calibration(setup: Setup, out_dir, *, spp: int, cornea: str, seed: int = 0,
                        grid=(5, 5), progress=None,
-                       eyelid_openness: float | None = 1.0) -> Path:
+                       eyelid_openness: float | None = 1.0,
+                       scene_text: str | None = None) -> Path:
     """Render single-pulse calibration frames of the eye fixating the calib grid.
 
     Writes ``frames/NNNNNN.png`` (frames in the middle of each fixation), ``labels.jsonl``
-    (:func:`scet_render.dataset.frame_labels`) and ``timing.json`` (with the calibration
-    exposure and strobe), each atomically. Returns the folder. ``eyelid_openness`` as
-    :func:`scet_render.dataset.render_dataset` (the frames carry no manifest: a folder is
-    reused as it is, so give each eyelid setting its own).
+    (:func:`scet_render.dataset.frame_labels`), ``timing.json`` (with the calibration
+    exposure and strobe) and ``scene.toml`` (the effective scene of ``setup``, the one to
+    calibrate with: :func:`scet_render.dataset.effective.effective_scene_text`; the timing
+    sidecar carries the single-pulse timing), each atomically. Returns the folder.
+    ``eyelid_openness`` as :func:`scet_render.dataset.render_dataset` (the frames carry no
+    manifest: a folder is reused as it is, so give each eyelid setting its own);
+    ``scene_text`` is the scene TOML ``setup`` was loaded from (default: read from
+    ``setup.source``).
     """
     from ..render import BandedRenderer, SensorModel
 
     out = Path(out_dir)
+    effective = effective_scene_text(setup, _scene_text(setup, scene_text))
+    text = effective.text
+    if effective.differs:  # what the text could not carry, in a line readers look for
+        text = f"{DIFFERS_MARK} {', '.join(effective.differs)}\n" + text
     cal = calibration_setup(setup)
     targets = setup.screen.grid(grid[0], grid[1], margin=0.0)
     traj = fixation_sequence(setup.eye, targets, CALIB_FIXATION_S)
@@ -63,4 +74,5 @@ def render_calibration(setup: Setup, out_dir, *, spp: int, cornea: str, seed: in
     atomic_write(out / TIMING_NAME, timing_document({f: f * dt for f in frames},
                                                    exposure_s=cal.sensor.exposure_s,
                                                    strobe=cal.strobe))
+    atomic_write(out / SCENE_NAME, text)
     return out

@@ -6,9 +6,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import numbers
-from dataclasses import fields, is_dataclass
-from enum import Enum
 from importlib import metadata
 from pathlib import Path
 
@@ -20,6 +17,7 @@ from estimator.inputs import MAX_FRAMES
 from estimator.setup import Setup
 
 from ..render import SensorModel
+from .effective import effective_scene_text, plain_value
 from .format import (
     FORMAT,
     FRAMES_DIR,
@@ -39,15 +37,25 @@ MAX_IMAGE_SIDE_PX = 16384
 
 def _manifest(setup: Setup, text: str, *, frames, spp, kind, seed, variant, cornea,
               sensor: SensorModel) -> dict:
+    scene = {
+        "name": setup.name,
+        "file": Path(setup.source).name if setup.source else "",
+        "sha256": hashlib.sha256(text.encode("utf-8")).hexdigest(),
+        "toml": text,
+    }
+    effective = effective_scene_text(setup, text)
+    if effective.overridden:
+        # The frames' own scene (a scaled camera, a planned strobe, ...): what calibrate,
+        # track, compare and score load. The file's sha256 stays on record beside it.
+        scene.update(sha256=hashlib.sha256(effective.text.encode("utf-8")).hexdigest(),
+                     toml=effective.text, file_sha256=scene["sha256"],
+                     overridden=effective.overridden)
+    if effective.differs:  # what the text could not carry: readers warn about it
+        scene["differs"] = effective.differs
     return {
         "format": FORMAT,
         "version": VERSION,
-        "scene": {
-            "name": setup.name,
-            "file": Path(setup.source).name if setup.source else "",
-            "sha256": hashlib.sha256(text.encode("utf-8")).hexdigest(),
-            "toml": text,
-        },
+        "scene": scene,
         "setup_sha256": setup_fingerprint(setup),
         "software": software_versions(),
         "seed": seed,
@@ -80,39 +88,9 @@ def software_versions() -> dict:
             "drjit": version("drjit"), "openexr": version("OpenEXR"), "opencv": cv2.__version__}
 
 
-#: Setup fields added after datasets were first written, with the value that reproduces the
-#: older setups: a field at that value is left out of the fingerprint, so that datasets
-#: rendered before it existed (byte-identical frames) still resume and compare equal.
-_LATER_FIELDS = {("Eye", "cornea_asphericity"): 0.0, ("Setup", "eyelids"): None}
-
-
-def _at_older_value(obj, name: str) -> bool:
-    key = (type(obj).__name__, name)
-    return key in _LATER_FIELDS and getattr(obj, name) == _LATER_FIELDS[key]
-
-
 def setup_fingerprint(setup: Setup) -> str:
     """sha256 of every field of a Setup (arrays and floats exactly), except its source path."""
-
-    def plain(x):
-        if is_dataclass(x):
-            return {f.name: plain(getattr(x, f.name)) for f in fields(x) if f.name != "source"
-                    and not _at_older_value(x, f.name)}
-        if isinstance(x, np.ndarray):
-            return {"shape": list(x.shape), "data": [float(v).hex() for v in x.ravel()]}
-        if isinstance(x, (tuple, list)):
-            return [plain(v) for v in x]
-        if isinstance(x, Enum):
-            return x.name
-        if isinstance(x, (bool, str, type(None))):
-            return x
-        if isinstance(x, numbers.Integral):
-            return int(x)
-        if isinstance(x, numbers.Real):
-            return float(x).hex()
-        raise TypeError(f"cannot fingerprint a {type(x).__name__} in the setup")
-
-    text = json.dumps(plain(setup), sort_keys=True, separators=(",", ":"))
+    text = json.dumps(plain_value(setup), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode("utf-8")).hexdigest()
 
 

@@ -242,7 +242,7 @@ def validate_setup(setup: Setup, cfg: ValidationConfig, out_dir, *, seed: int = 
     t = time.perf_counter()
     cal_dir = render_calibration(setup, out / "calibration", spp=cfg.spp, cornea=cfg.cornea,
                                  seed=seed, grid=cfg.calib_grid, progress=stage("calibration"),
-                                 eyelid_openness=eyelid_openness)
+                                 eyelid_openness=eyelid_openness, scene_text=scene_text)
     settings = {}  # pulses per frame -> (setup, test folder)
     for ppf in cfg.pulses_per_frame:
         sset = strobe_setup(setup, ppf)

@@ -74,9 +74,13 @@ def test_render_rejects_bad_arguments_before_rendering(capsys, tmp_path):
 
 
 def test_track_and_calibrate_name_missing_inputs(capsys, tmp_path):
+    assert main(["track", str(tmp_path / "nowhere"), "--scene", "paper_sim", "--calibration",
+                 str(tmp_path / "cal.json"), "--out", str(tmp_path / "s.csv")]) == 2
+    assert "cal.json" in capsys.readouterr().err
+    # Without --scene the folder must say its scene: a missing folder is named first.
     assert main(["track", str(tmp_path / "nowhere"), "--calibration", str(tmp_path / "cal.json"),
                  "--out", str(tmp_path / "s.csv")]) == 2
-    assert "cal.json" in capsys.readouterr().err
+    assert "nowhere: no such folder" in capsys.readouterr().err
     assert main(["calibrate", str(tmp_path / "nowhere"), "--out", str(tmp_path / "cal.json")]) == 2
     assert "nowhere" in capsys.readouterr().err
     assert not (tmp_path / "s.csv").exists() and not (tmp_path / "cal.json").exists()
@@ -92,13 +96,14 @@ def test_track_refuses_to_flag_cut_glints_without_glint_flux(capsys, tmp_path):
     rng = np.random.default_rng(1)
     folder = write_folder(tmp_path / "run", setup, [draw_frame(setup, 0, 0.0, 0.0, rng)])
     save_calibration(ground_truth_calibration(setup), tmp_path / "old.json")  # no glint_flux
-    assert main(["track", str(folder), "--calibration", str(tmp_path / "old.json"),
-                 "--out", str(tmp_path / "s.csv"), "--flag-cut-glints"]) == 2
+    assert main(["track", str(folder), "--scene", "paper_sim", "--calibration",
+                 str(tmp_path / "old.json"), "--out", str(tmp_path / "s.csv"),
+                 "--flag-cut-glints"]) == 2
     err = capsys.readouterr().err
     assert "old.json" in err and "no glint_flux" in err  # the file and the key
     assert not (tmp_path / "s.csv").exists()
     # Without the option the flag is on only where the calibration can flag: this one tracks.
     for extra in ([], ["--no-flag-cut-glints"]):
-        assert main(["track", str(folder), "--calibration", str(tmp_path / "old.json"),
-                     "--out", str(tmp_path / "s.csv")] + extra) == 0
+        assert main(["track", str(folder), "--scene", "paper_sim", "--calibration",
+                     str(tmp_path / "old.json"), "--out", str(tmp_path / "s.csv")] + extra) == 0
         assert (tmp_path / "s.csv").exists()

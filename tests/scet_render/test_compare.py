@@ -193,6 +193,10 @@ def test_a_scene_of_another_resolution_is_a_clear_error(world, capsys, tmp_path)
 def test_a_missing_capture_is_a_clear_error(capsys, tmp_path):
     line = _one_line_error(capsys, ["compare", str(tmp_path / "nothing"), "--report-dir",
                                     str(tmp_path / "r")])
+    assert f"{tmp_path / 'nothing'}: no such folder" in line
+    # Named with --scene, the capture reader names what is missing.
+    line = _one_line_error(capsys, ["compare", str(tmp_path / "nothing"), "--scene", "paper_sim",
+                                    "--report-dir", str(tmp_path / "r")])
     assert "capture.json" in line
 
 

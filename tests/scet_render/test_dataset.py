@@ -21,7 +21,8 @@ import pytest
 
 from estimator.banding import row_pulse_weights, strobe_instant
 from estimator.geometry import Camera
-from estimator.scene import load_scene
+from estimator.scene import load_scene, parse_scene
+from scet_render.dataset.effective import setup_differences
 from scet_render.dataset import (
     FORMAT,
     LABELS_NAME,
@@ -225,8 +226,13 @@ def test_manifest_describes_the_run(dataset, small):
     m = read_manifest(dataset)
     assert (m["format"], m["version"]) == ("scet-dataset", 1)
     text = Path(small.source).read_text(encoding="utf-8")
-    assert m["scene"]["name"] == "paper_sim" and m["scene"]["toml"] == text
-    assert m["scene"]["sha256"] == hashlib.sha256(text.encode()).hexdigest() == small.source_sha256
+    # The setup is paper_sim halved in code: the manifest records the effective scene (the
+    # text that loads into exactly the setup rendered) and the file's sha256 beside it.
+    effective = m["scene"]["toml"]
+    assert m["scene"]["name"] == "paper_sim" and m["scene"]["overridden"] == ["camera", "sensor"]
+    assert setup_differences(parse_scene(effective), small) == []
+    assert m["scene"]["sha256"] == hashlib.sha256(effective.encode()).hexdigest()
+    assert m["scene"]["file_sha256"] == hashlib.sha256(text.encode()).hexdigest() == small.source_sha256
     assert m["setup_sha256"] == setup_fingerprint(small)
     assert set(m["software"]) >= {"scet", "numpy", "mitsuba", "drjit"}
     assert m["software"]["numpy"] == np.__version__
@@ -250,7 +256,8 @@ def test_exr_holds_float32_radiance_and_the_strobe_header(dataset, small):
         exr = read_exr(path)
         assert exr.radiance.dtype == np.float32 and exr.radiance.shape == (240, 320)
         assert np.all(np.isfinite(exr.radiance)) and np.all(exr.radiance >= 0)
-        assert exr.frame == f and exr.scene_sha256 == small.source_sha256
+        # The sha256 of the effective scene the manifest records (the file's, halved in code).
+        assert exr.frame == f and exr.scene_sha256 == read_manifest(dataset)["scene"]["sha256"]
         # The rendered pulses are exactly the labelled strobes, posed at the labelled instants.
         lab = [lb for lb in labels if lb.frame == f]
         assert exr.pulse_indices.tolist() == [lb.strobe for lb in lab]
@@ -425,9 +432,10 @@ def test_refuses_a_dataset_of_another_scene(dataset, small):
         render_dataset(other, dataset, frames=FRAMES, spp=SPP, trajectory="saccades", seed=SEED)
     message = str(err.value)
     assert "scene.name" in message and "scene.sha256" in message and "setup_sha256" in message
-    # Same scene file, other camera: only the fingerprint tells them apart.
+    # Same scene file, other camera: the fingerprint, and the effective scene the dataset
+    # records (its camera overridden in code), tell them apart.
     with pytest.raises(DatasetMismatchError, match="setup_sha256") as err:
         render_dataset(load_scene("paper_sim"), dataset, frames=FRAMES, spp=SPP,
                        trajectory="saccades", seed=SEED)
-    assert "scene.sha256" not in str(err.value)
+    assert "scene.overridden: dataset has" in str(err.value)
     assert tree_digest(dataset) == before

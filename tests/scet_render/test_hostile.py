@@ -192,9 +192,12 @@ def test_track_refuses_to_write_over_its_calibration(tmp_path, capsys):
     cal = save_calibration(Calibration.ground_truth(load_scene()), tmp_path / "cal.json")
     before = cal.read_bytes()
     folder = dataset(tmp_path / "d")
-    assert main(["track", str(folder), "--calibration", str(cal), "--out", str(cal)]) == 2
+    # The stub manifest's scene does not load: --scene names one (the folder's is warned about).
+    assert main(["track", str(folder), "--scene", "paper_sim", "--calibration", str(cal),
+                 "--out", str(cal)]) == 2
     assert "is one of the inputs" in capsys.readouterr().err and cal.read_bytes() == before
-    assert main(["calibrate", str(folder), "--out", str(folder / "labels.jsonl")]) == 2
+    assert main(["calibrate", str(folder), "--scene", "paper_sim", "--out",
+                 str(folder / "labels.jsonl")]) == 2
     assert "is one of the inputs" in capsys.readouterr().err
     assert (folder / "labels.jsonl").read_text().startswith('{"frame": 0')
 

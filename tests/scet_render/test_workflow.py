@@ -1,7 +1,10 @@
-"""The README's worked example, run line by line: render calibration frames, calibrate, render
-a banded test sequence, track it with both methods, score the samples against the labels.
+"""The worked example, run line by line: render calibration frames, calibrate, render a banded
+test sequence, track it (the README's geometric line, and the polynomial method beside it),
+score the samples against the labels.
 
-The lines are read from the README's "Worked example" block and run through ``scet``'s own
+The lines are read from the "Worked example" block of the accuracy-regression tutorial
+(``docs/tutorials/accuracy-regression.md``; ``tests/docs/test_docs.py`` holds the README's
+block to the same lines) and run through ``scet``'s own
 ``main`` on a 320x240 copy of ``paper_sim`` (focal length, resolution and line count halved, as
 ``estimator.banding.scaled_setup`` does; same field of view and strobe timing) at 4 spp with the
 conductor cornea (exact glints at low spp), as ``scet validate --quick`` renders.
@@ -9,6 +12,8 @@ conductor cornea (exact glints at low spp), as ``scet validate --quick`` renders
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import re
 import shlex
@@ -21,7 +26,7 @@ from scet_render.cli import main
 
 pytest.importorskip("mitsuba")
 
-README = Path(__file__).resolve().parents[2] / "README.md"
+TUTORIAL = Path(__file__).resolve().parents[2] / "docs" / "tutorials" / "accuracy-regression.md"
 #: The true corneal radius of paper_sim (mm) and the issue's tolerance: the calibration must
 #: recover it to 0.1 mm (conductor glints at 320x240 fit to ~0.2 px; validate --quick: 7.79 mm).
 TRUE_RC_MM, RC_TOL_MM = 7.8, 0.1
@@ -30,10 +35,11 @@ TRUE_RC_MM, RC_TOL_MM = 7.8, 0.1
 BOUND_DEG = {"geometric": 0.2, "polynomial": 1.5}
 
 
-def _readme_lines() -> list[str]:
-    text = README.read_text(encoding="utf-8")
-    block = re.search(r"### Worked example: calibrate, track, score.*?```sh\n(.*?)```", text, re.S)
-    assert block, "README: no worked example block"
+def worked_example(path: Path) -> list[str]:
+    """The command lines of the "Worked example" ``sh`` block of a Markdown file."""
+    text = path.read_text(encoding="utf-8")
+    block = re.search(r"#+ Worked example: calibrate, track, score.*?```sh\n(.*?)```", text, re.S)
+    assert block, f"{path}: no worked example block"
     return [ln for ln in block.group(1).splitlines() if ln.strip()]
 
 
@@ -53,15 +59,24 @@ def _small_scene(path: Path) -> Path:
 def workflow(tmp_path_factory):
     work = tmp_path_factory.mktemp("workflow")
     scene = _small_scene(work / "small.toml")
-    lines = _readme_lines()
-    assert len(lines) == 6 and all(ln.startswith("scet ") for ln in lines)
+    lines = worked_example(TUTORIAL)
+    assert len(lines) == 5 and all(ln.startswith("scet ") for ln in lines)
+    # The README tracks with one method; the polynomial one is tracked here, as a user would.
+    track = next(ln for ln in lines if ln.startswith("scet track"))
+    lines.insert(lines.index(track) + 1, track.replace("geometric", "polynomial"))
+    lines[-1] = lines[-1].replace("work/test", "work/samples_polynomial.csv work/test")
     for line in lines:
         argv = shlex.split(line)[1:]
         argv = [str(scene) if a == "paper_sim" else (str(work / a[5:]) if a.startswith("work/") else a)
                 for a in argv]
         if argv[0] == "render":
             argv += ["--spp", "4", "--cornea", "conductor"]
-        assert main(argv) == 0, line
+        printed = io.StringIO()
+        with contextlib.redirect_stdout(printed):
+            assert main(argv) == 0, line
+        if argv[0] in ("calibrate", "track"):  # no --scene: the folder's own, named
+            where = "scene.toml" if argv[0] == "calibrate" else "manifest.json (its scene.toml)"
+            assert f"scene: paper_sim, from {argv[1]}/{where}" in printed.getvalue()
     return work
 
 
