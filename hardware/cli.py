@@ -13,15 +13,28 @@ from scet_render.runner import finite, integer  # NaN, infinite and absurd flags
 __all__ = ["register"]
 
 PORT_ENV = "SCET_STROBE_PORT"
+SETTINGS_ENV = "SCET_STROBE_SETTINGS"
 
 
-def _link(args):
+def settings_path(args) -> Path:
+    """The strobe settings file: --settings, $SCET_STROBE_SETTINGS, or
+    $XDG_CONFIG_HOME/scet/strobe-settings.json (~/.config by default)."""
+    if getattr(args, "settings", None):
+        return Path(args.settings)
+    if os.environ.get(SETTINGS_ENV):
+        return Path(os.environ[SETTINGS_ENV])
+    base = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")
+    return Path(base) / "scet" / "strobe-settings.json"
+
+
+def _link(args, port=None):
     from .strobe import StrobeLink
 
-    port = args.port or os.environ.get(PORT_ENV)
+    port = port or getattr(args, "port", None) or os.environ.get(PORT_ENV)
     if not port:
         raise ValueError(f"no serial port: pass --port or set {PORT_ENV}")
-    return StrobeLink(port, timeout_s=args.timeout, wait_ready_s=args.wait_ready)
+    return StrobeLink(port, timeout_s=args.timeout, boot_s=args.boot_s,
+                      keep_dtr=not args.allow_reset, settings=settings_path(args))
 
 
 def _lock(args, link) -> int:
@@ -125,9 +138,7 @@ def cmd_capture(args) -> int:
     plan = _plan(args)
     strobe = dict(plan.firmware)
     if args.strobe_port:
-        from .strobe import StrobeLink
-
-        with StrobeLink(args.strobe_port, timeout_s=args.timeout) as link:
+        with _link(args, port=args.strobe_port) as link:
             strobe = link.apply(pulses=strobe["pulses"], width_ticks=strobe["width_ticks"],
                                 period_ticks=strobe["period_ticks"], trim_256th=strobe["trim_256th"],
                                 mode=strobe["mode"]).to_dict()
@@ -180,6 +191,21 @@ def cmd_hardware(args) -> int:
     return 0
 
 
+def _link_args(p) -> None:
+    from .strobe import BOOT_S
+
+    p.add_argument("--timeout", type=finite(0.01, 3600.0), default=1.0,
+                   help="seconds to wait for a reply")
+    p.add_argument("--boot-s", type=finite(0.01, 3600.0), default=BOOT_S,
+                   help=f"seconds the board may take to answer after opening the port resets it "
+                        f"(Optiboot waits ~1 s; default {BOOT_S:g})")
+    p.add_argument("--allow-reset", action="store_true",
+                   help="leave HUPCL set: every close drops DTR, so every open resets the board")
+    p.add_argument("--settings", type=Path,
+                   help=f"strobe settings file re-applied after a reset (default ${SETTINGS_ENV} or "
+                        "~/.config/scet/strobe-settings.json)")
+
+
 def _plan_args(p) -> None:
     p.add_argument("--profile", default="ov5647_mode6", choices=("ov5647_mode6", "ov5647_mode7"),
                    help="sensor reading: mode6 = today's kernel driver, S = 524 (default); mode7, S = 786")
@@ -198,9 +224,7 @@ def register(sub) -> None:
                                        "lock"))
     p.add_argument("ticks", nargs="?", type=int, help="phase: shift in ticks (+ delays the train)")
     p.add_argument("--port", help=f"serial port (default ${PORT_ENV})")
-    p.add_argument("--timeout", type=finite(0.0, 3600.0), default=1.0, help="seconds to wait for a reply")
-    p.add_argument("--wait-ready", type=finite(0.0, 3600.0), default=0.0,
-                   help="seconds to wait for the board's READY line after opening (it resets)")
+    _link_args(p)
     p.add_argument("--pulses", type=integer(1, 1000))
     p.add_argument("--width-ticks", type=int)
     p.add_argument("--period-ticks", type=int)
@@ -223,7 +247,7 @@ def register(sub) -> None:
     p.add_argument("--raw-format", default="SGBRG10_CSI2P", help="SGBRG10_CSI2P (packed) or SGBRG10")
     p.add_argument("--channel-response", default="1,1,1,1", help="replay: R,Gr,Gb,B relative response")
     p.add_argument("--strobe-port", help="set the strobe firmware to the plan first (serial port)")
-    p.add_argument("--timeout", type=finite(0.0, 3600.0), default=1.0)
+    _link_args(p)
     _plan_args(p)
     p.set_defaults(func=cmd_capture)
 

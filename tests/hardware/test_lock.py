@@ -67,7 +67,9 @@ def test_scet_strobe_lock_sends_the_law_to_the_simulated_firmware(firmware, tmp_
     timing = tmp_path / "m.json"
     timing.write_text(json.dumps({"phase_s": ph, "phase_frames": n.tolist(), "frame_period_s": dt,
                                   "total_lines": S, "periods_per_frame": M}))
-    with SimulatedBoard(firmware, tmp_path) as board:
+    from tests.hardware.conftest import BOOT_S
+
+    with SimulatedBoard(firmware, tmp_path, boot_s=BOOT_S) as board:
         with StrobeLink(board.port, timeout_s=2.0) as link:
             before = link.get()
         assert main(["strobe", "lock", "--port", board.port, "--timing", str(timing),
