@@ -24,7 +24,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["F_CPU_HZ", "LockCommand", "lock_command", "FirmwareTrain", "simulate_lock"]
+__all__ = ["F_CPU_HZ", "LockCommand", "lock_command", "FirmwareTrain", "simulate_lock",
+           "band_phase_rows", "PhaseLockLoop"]
 
 F_CPU_HZ = 16_000_000
 TRIM_MAX = 255
@@ -141,3 +142,139 @@ def simulate_lock(*, ppm: float, total_lines: int = 524, frame_period_s: float =
             queued = (f + 2, cmd)
             seen, idx = [], []
     return np.arange(frames), np.asarray(offsets)
+
+
+def band_phase_rows(image_dn: np.ndarray, black_dn: float, pitch_rows: float) -> float:
+    """The bands' phase in one frame (rows, modulo the pitch): the phase of the row profile's
+    fundamental at the known band pitch, i.e. the band centres' offset from row 0.
+
+    The row profile (glints clipped as :func:`estimator.capture.timing.measure_frame` does,
+    divided by its running mean over one pitch to remove the scene's brightness) is a
+    periodic train of bands; its Fourier coefficient at 1/pitch has the phase
+    -2π c/pitch for bands centred at rows c + j pitch. O(rows): cheap enough for every frame
+    on a Pi, where the full fit of measure_frame is not. NaN for a frame without light.
+
+    Parameters
+    ----------
+    image_dn : (H, W) float
+    pitch_rows : float
+        S Δclk / Δt (Eq. (1) of estimator.capture.timing), from the plan.
+    """
+    img = np.asarray(image_dn, dtype=np.float64)
+    p95 = float(np.percentile(img[::4, ::4], 95))
+    clip = black_dn + 3.0 * max(p95 - black_dn, 2.0)
+    r = np.minimum(img, clip).mean(axis=1) - black_dn
+    if not r.max() > 2.0:
+        return math.nan
+    w = max(int(round(pitch_rows)), 2)
+    env = np.convolve(r, np.ones(w) / w, mode="same")
+    h = w // 2 + 1
+    y = np.arange(h, r.size - h, dtype=np.float64)
+    q = r[h:r.size - h] / np.maximum(env[h:r.size - h], 1e-9) - 1.0
+    c = np.sum(q * np.exp(-2j * np.pi * y / pitch_rows))
+    if abs(c) < 1e-6 * y.size:
+        return math.nan
+    return float((-np.angle(c) / (2 * np.pi) * pitch_rows) % pitch_rows)
+
+
+class PhaseLockLoop:
+    """The software phase lock inside the capture loop: every frame's band phase
+    (:func:`band_phase_rows`) in, every ``window`` frames measured under one setting a
+    :func:`lock_command` out to the board (``SET PERIOD``, ``SET TRIM``, ``PHASE``).
+
+    The phase held is the band centres' (rows modulo the pitch) at ``target_rows``, default
+    the first measured frame's. The measurement runs behind the camera (on its own thread,
+    skipping frames when busy), so a command is timed by the newest frame the camera has
+    delivered when it is sent (:meth:`seen`, called from the capture loop): it acts within
+    the frame after that one, so frames up to ``delay_frames`` after it are not used for the
+    next window, and its phase shift is aimed at that frame. After a board reset
+    (:meth:`restart`) the window starts over: the train's phase is a new random one, the
+    period and trim come back from the settings file.
+
+    Parameters
+    ----------
+    link : StrobeLink
+    frame_period_s, total_lines, periods_per_frame
+        Δt, S and M of the plan (the pitch S Δclk / Δt with Δclk = Δt / M).
+    tolerance_rows : float
+        :attr:`locked` when the last ``window`` measured phases lie this close to the target.
+    """
+
+    def __init__(self, link, *, frame_period_s: float, total_lines: float,
+                 periods_per_frame: int, black_dn: float = 16.0, target_rows: float | None = None,
+                 window: int = 10, delay_frames: int = 2, tolerance_rows: float = 1.0):
+        self.link = link
+        self.dt, self.S, self.M = float(frame_period_s), float(total_lines), int(periods_per_frame)
+        self.pitch_rows = self.S / self.M
+        self.line_s = self.dt / self.S
+        self.black_dn = float(black_dn)
+        self.target_rows = target_rows
+        self.window, self.delay, self.tolerance = int(window), int(delay_frames), float(tolerance_rows)
+        self.history: list[tuple[int, float, float]] = []   # (frame, phase rows, offset rows)
+        self.commands: list[tuple[int, LockCommand]] = []
+        self._seen, self._idx = [], []
+        self._settled = 0
+        self.latest_index = 0
+
+    def seen(self, index: int) -> None:
+        """The camera has delivered frame ``index`` (the capture loop's thread)."""
+        self.latest_index = max(self.latest_index, int(index))
+
+    def restart(self) -> None:
+        """The board reset: its phase is new; measure afresh."""
+        self._seen, self._idx = [], []
+        self._settled = 0
+
+    def offset_rows(self, phase_rows: float) -> float:
+        p = self.pitch_rows
+        return (phase_rows - self.target_rows + p / 2) % p - p / 2
+
+    @property
+    def locked(self) -> bool:
+        last = [o for _, _, o in self.history[-self.window:]]
+        return len(last) == self.window and max(abs(o) for o in last) <= self.tolerance
+
+    def frame(self, index: int, image_dn: np.ndarray) -> float:
+        """Measure one frame and act when a window is full; the phase in rows (NaN: none)."""
+        phase = band_phase_rows(image_dn, self.black_dn, self.pitch_rows)
+        if math.isfinite(phase):
+            self.observe(index, phase)
+        return phase
+
+    def observe(self, index: int, phase_rows: float) -> LockCommand | None:
+        if self.target_rows is None:
+            self.target_rows = phase_rows
+        self.history.append((index, phase_rows, self.offset_rows(phase_rows)))
+        if index < self._settled:
+            return None
+        self._seen.append(phase_rows * self.line_s)
+        self._idx.append(index)
+        if len(self._seen) < self.window:
+            return None
+        # A frame measured wrong (a glint row, a frame the camera tore) would steer the whole
+        # window: phases more than one row off the window's line are left out, and a window
+        # with fewer than half its frames left gives no command.
+        idx = np.asarray(self._idx, dtype=np.float64)
+        ph = np.unwrap(np.asarray(self._seen) * 2 * np.pi / (self.pitch_rows * self.line_s))
+        ph *= self.pitch_rows / (2 * np.pi)
+        res = ph - np.polyval(np.polyfit(idx, ph, 1), idx)
+        keep = np.abs(res) <= 1.0
+        if keep.sum() < self.window // 2:
+            self._seen, self._idx = [], []
+            return None
+        self._seen = [v for v, k in zip(self._seen, keep) if k]
+        self._idx = [v for v, k in zip(self._idx, keep) if k]
+        s = self.link.get()
+        now = max(self.latest_index, index)
+        cmd = lock_command(self._seen, self._idx, frame_period_s=self.dt, total_lines=self.S,
+                           periods_per_frame=self.M, period_ticks=s.period_ticks,
+                           trim_256th=s.trim_256th, target_phase_s=self.target_rows * self.line_s,
+                           next_frame=now + self.delay)
+        self.link.apply(period_ticks=cmd.period_ticks, trim_256th=cmd.trim_256th)
+        if cmd.phase_ticks:
+            self.link.shift_phase(cmd.phase_ticks)
+        self.commands.append((index, cmd))
+        self._seen, self._idx = [], []
+        # The newest frame may have advanced while the commands were on the wire.
+        self._settled = max(self.latest_index, now) + self.delay + 1
+        return cmd
