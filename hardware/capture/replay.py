@@ -123,9 +123,11 @@ class ReplayCamera:
         self._next = 0
         self._slot = None
         self._cond = threading.Condition()
+        self._halt = threading.Event()
         self._running = False
         self._thread = None
         self.produced = 0
+        self.t0_ns = None
 
     # ------------------------------------------------------------------ the header
     def header(self) -> dict:
@@ -179,12 +181,14 @@ class ReplayCamera:
         for f in self.order:
             self._rows(f)
         self._running = True
+        self._halt.clear()
         self._thread = threading.Thread(target=self._sensor, name="replay-sensor", daemon=True)
         self._thread.start()
 
     def _sensor(self) -> None:
         dt = self.frame_period_s
         t0 = time.monotonic_ns() + int(0.01e9)
+        self.t0_ns = t0          # SensorTimestamp of the sensor's frame 0
         k = 0
         stalled = False
         while self._running:
@@ -197,7 +201,7 @@ class ReplayCamera:
                 time.sleep(wait)
             if (not stalled and self.stall_after is not None and self.produced >= self.stall_after):
                 stalled = True
-                time.sleep(self.stall_s)
+                self._halt.wait(self.stall_s)
                 # The sensor runs on; frames of the stall were never delivered.
                 k = int((time.monotonic_ns() - t0) / (dt * 1e9))
                 continue
@@ -229,6 +233,7 @@ class ReplayCamera:
 
     def stop(self) -> None:
         self._running = False
+        self._halt.set()
         if self._thread is not None:
             self._thread.join(5.0)
             self._thread = None
