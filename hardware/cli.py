@@ -163,10 +163,10 @@ def _capture_run(args, *, tracker_worker=None, label="capture"):
     import signal
     import threading
 
-    from estimator.capture import CaptureWriter, decode_raw, parse_raw_format
+    from estimator.capture import CaptureWriter, parse_raw_format
 
-    from .capture.stream import Worker, stream_capture
-    from .lock import PhaseLockLoop
+    from .capture.stream import stream_capture
+    from .lock import LockFeed, PhaseLockLoop
 
     plan = _plan(args)
     strobe_model = _single_check(plan) if args.single else None
@@ -200,22 +200,16 @@ def _capture_run(args, *, tracker_worker=None, label="capture"):
         writer = CaptureWriter(args.out, header)
         fmt = parse_raw_format(header["raw"]["format"])
         width = header["raw"]["size"][0]
-        lock_worker = None
-        if lock is not None:
-            lock_worker = Worker(lambda item: lock.frame(item[0], decode_raw(item[1], fmt, width)
-                                                         .astype("float64")), "phase-lock")
-        first, period = [], [plan.sensor.frame_period_s]
+        feed = LockFeed(lock, fmt.name, width) if lock is not None else None
+        first = []
 
         def on_frame(index, rows, md):
             ts = int(md["SensorTimestamp"])
             if not first:
                 first.append(ts)
-            if md.get("FrameDuration"):
-                period[0] = float(md["FrameDuration"]) * 1e-6
-            f = int(round((ts - first[0]) * 1e-9 / period[0]))
-            if lock is not None:
-                lock.seen(f)
-                lock_worker.offer((f, rows))
+            f = int(round((ts - first[0]) * 1e-9 / plan.sensor.frame_period_s))
+            if feed is not None:
+                f = feed(rows, md)
             if tracker_worker is not None:
                 tracker_worker.offer((f, rows, md, time.perf_counter()))
             if args.progress_every and (index + 1) % args.progress_every == 0:
@@ -242,8 +236,8 @@ def _capture_run(args, *, tracker_worker=None, label="capture"):
         finally:
             if old is not None:
                 signal.signal(signal.SIGTERM, old)
-            if lock_worker is not None:
-                lock_worker.close()
+            if feed is not None:
+                feed.close()
     finally:
         if cam is not None:
             cam.stop()

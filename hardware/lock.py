@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = ["F_CPU_HZ", "LockCommand", "lock_command", "FirmwareTrain", "simulate_lock",
-           "band_phase_rows", "PhaseLockLoop"]
+           "band_phase_rows", "PhaseLockLoop", "LockFeed"]
 
 F_CPU_HZ = 16_000_000
 TRIM_MAX = 255
@@ -214,6 +214,7 @@ class PhaseLockLoop:
         self.commands: list[tuple[int, LockCommand]] = []
         self._seen, self._idx = [], []
         self._settled = 0
+        self._epoch = 0
         self.latest_index = 0
 
     def seen(self, index: int) -> None:
@@ -223,7 +224,8 @@ class PhaseLockLoop:
     def restart(self) -> None:
         """The board reset: its phase is new; measure afresh."""
         self._seen, self._idx = [], []
-        self._settled = 0
+        self._settled = self.latest_index + 1
+        self._epoch += 1
 
     def offset_rows(self, phase_rows: float) -> float:
         p = self.pitch_rows
@@ -262,11 +264,14 @@ class PhaseLockLoop:
         if keep.sum() < self.window // 2:
             self._seen, self._idx = [], []
             return None
-        self._seen = [v for v, k in zip(self._seen, keep) if k]
-        self._idx = [v for v, k in zip(self._idx, keep) if k]
-        s = self.link.get()
+        seen = [v for v, k in zip(self._seen, keep) if k]
+        idxs = [v for v, k in zip(self._idx, keep) if k]
+        epoch = self._epoch
+        s = self.link.get()          # may find the board reset: restart() runs inside it
+        if epoch != self._epoch:
+            return None
         now = max(self.latest_index, index)
-        cmd = lock_command(self._seen, self._idx, frame_period_s=self.dt, total_lines=self.S,
+        cmd = lock_command(seen, idxs, frame_period_s=self.dt, total_lines=self.S,
                            periods_per_frame=self.M, period_ticks=s.period_ticks,
                            trim_256th=s.trim_256th, target_phase_s=self.target_rows * self.line_s,
                            next_frame=now + self.delay)
@@ -278,3 +283,35 @@ class PhaseLockLoop:
         # The newest frame may have advanced while the commands were on the wire.
         self._settled = max(self.latest_index, now) + self.delay + 1
         return cmd
+
+
+class LockFeed:
+    """The capture loop's side of :class:`PhaseLockLoop`: ``feed(rows, metadata)`` for every
+    frame (cheap: the frame index from its time stamp, then the rows handed to the lock's own
+    thread unless it is busy). The index counts frame periods from the first frame fed, so
+    dropped frames keep their place. :meth:`close` stops the thread and re-raises its error."""
+
+    def __init__(self, lock: PhaseLockLoop, raw_format: str, width_px: int):
+        from estimator.capture import decode_raw, parse_raw_format
+
+        from .capture.stream import Worker
+
+        fmt = parse_raw_format(raw_format)
+        self.lock = lock
+        self._first = None
+        self.worker = Worker(lambda item: lock.frame(
+            item[0], decode_raw(item[1], fmt, width_px).astype(np.float64)), "phase-lock")
+
+    def __call__(self, rows, metadata: dict) -> int:
+        ts = int(metadata["SensorTimestamp"])
+        if self._first is None:
+            self._first = ts
+        f = int(round((ts - self._first) * 1e-9 / self.lock.dt))
+        self.lock.seen(f)
+        self.worker.offer((f, rows))
+        return f
+
+    def close(self) -> None:
+        self.worker.close()
+        if self.worker.error is not None:
+            raise self.worker.error
