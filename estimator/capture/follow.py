@@ -69,15 +69,20 @@ class CaptureFollower:
         except CaptureError:
             return "capturing"    # being rewritten this instant
 
-    def frames(self) -> Iterator[CaptureFrame]:
-        """Every frame slot as it arrives (module docstring)."""
-        last_seen = self._clock()
-        while not self._open():
-            if self._clock() - last_seen > self.timeout_s:
+    def wait_open(self) -> CaptureFolder:
+        """The capture's header, once ``capture.json`` is there (waiting up to ``timeout_s``)."""
+        start = self._clock()
+        while self.cap is None and not self._open():
+            if self._clock() - start > self.timeout_s:
                 raise CaptureError(f"{self.path}: no {CAPTURE_NAME} within {self.timeout_s:g} s "
                                    "(not a capture, or its writer has not started)")
             self._sleep(self.poll_s)
-        cap = self.cap
+        return self.cap
+
+    def frames(self) -> Iterator[CaptureFrame]:
+        """Every frame slot as it arrives (module docstring)."""
+        cap = self.wait_open()
+        last_seen = self._clock()
         list_path = self.path / FRAMES_LIST_NAME
         offset, number, pending = 0, 0, b""
         t0 = last_ts = last_f = None

@@ -188,3 +188,39 @@ def test_a_torn_last_line_is_left_out(dataset, tmp_path):
     assert len(cap.entries) == 5
     assert any("frames.jsonl, line 6" in p for p in cap.problems)
     assert len(list(follow_capture(out, timeout_s=0.5))) >= 5
+
+
+def test_bands_measure_follow_reads_a_capture_while_it_is_written(tmp_path, capsys):
+    """`scet bands --measure --follow`: a banded capture (ppm -300, drawn by Eqs. (2)-(8))
+    is written frame by frame while the command reads it; the measurement equals the one of
+    the finished folder, with a line a frame on the way."""
+    import threading
+
+    from estimator.capture import CaptureFolder as Folder
+    from scet_render.cli import main
+    from tests.estimator.capture.banded import make_capture
+
+    src = tmp_path / "src"
+    make_capture(src, frames=8, ppm=-300.0)
+    cap = Folder(src)
+    out = tmp_path / "live"
+
+    def write():
+        w = CaptureWriter(out, dict(cap.header))
+        for _, d, _ in cap.entries:
+            meta = {k: v for k, v in d.items() if k != "file"}
+            w.write(np.frombuffer((src / d["file"]).read_bytes(), np.uint8).reshape(480, -1), meta)
+            time.sleep(0.02)
+        w.finish("complete", {})
+
+    t = threading.Thread(target=write)
+    t.start()
+    assert main(["bands", "--measure", str(out), "--follow", "--json", str(tmp_path / "f.json")]) == 0
+    t.join()
+    lines = capsys.readouterr().out
+    assert lines.count("phase ") >= 8
+    assert main(["bands", "--measure", str(src), "--json", str(tmp_path / "b.json")]) == 0
+    a = json.loads((tmp_path / "f.json").read_text())
+    b = json.loads((tmp_path / "b.json").read_text())
+    assert a["phase_s"] == pytest.approx(b["phase_s"], abs=1e-9)
+    assert a["total_lines"] == pytest.approx(b["total_lines"], rel=1e-6)
