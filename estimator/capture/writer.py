@@ -25,15 +25,18 @@ from pathlib import Path
 
 import numpy as np
 
-from ..formats import FRAMES_DIR, atomic_write, frame_name
+from ..formats import FRAMES_DIR, PARTIAL_SUFFIX, atomic_write, frame_name
 from .raw import encode_raw, parse_raw_format
 
 __all__ = ["CaptureWriter", "STATES"]
 
 #: The values of ``capture.json``'s ``state``.
 STATES = ("capturing", "complete", "interrupted", "failed")
-#: The frame list is flushed to the disk (fsync) at most this often (s): each raw file is
-#: fsynced when written, the list's lines are cheap to lose and expensive to sync each frame.
+#: Seconds between flushes to the disk. A raw file is written under a temporary name and
+#: renamed (so a file that exists is whole, whatever kills the process), but not fsynced one
+#: by one: 60 fsyncs a second kept the writer behind a 60 fps camera on the soak machine
+#: (benchmarks/bench_live_soak.py); once a second ``os.sync`` flushes the frames and then the
+#: list. A power cut can lose the last second; a killed process loses nothing written.
 SYNC_EVERY_S = 1.0
 
 
@@ -104,12 +107,23 @@ class CaptureWriter:
             raise ValueError(f"frame {self.frames}: raw buffer of shape {a.shape}, the header says "
                              f"{self._shape}")
         name = f"{FRAMES_DIR}/{frame_name(self.frames, 'raw')}"
-        atomic_write(self.folder / name, np.ascontiguousarray(a).tobytes())
+        path = self.folder / name
+        tmp = path.with_name(path.name + PARTIAL_SUFFIX)
+        try:
+            with open(tmp, "wb") as fh:
+                fh.write(np.ascontiguousarray(a).tobytes())
+            os.replace(tmp, path)
+        except OSError as exc:
+            try:
+                tmp.unlink()
+            except OSError:
+                pass
+            raise OSError(exc.errno, f"cannot write ({exc.strerror})", str(path)) from None
         self._list.write((json.dumps({"file": name, **metadata}, sort_keys=True) + "\n").encode())
         self._list.flush()
         now = self._clock()
         if now - self._synced >= SYNC_EVERY_S:
-            os.fsync(self._list.fileno())
+            os.sync()
             self._synced = now
         self.frames += 1
         return name

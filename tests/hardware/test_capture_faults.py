@@ -144,7 +144,7 @@ def test_sigint_ends_the_capture_cleanly(dataset, tmp_path):
     assert f"{n} frames written" in stderr and "interrupted (SIGINT)" in stderr
 
 
-def test_sigkill_leaves_a_readable_capture(dataset, tmp_path, caplog):
+def test_sigkill_leaves_a_readable_capture(dataset, tmp_path):
     out = tmp_path / "cap"
     proc = _start_capture(dataset, out)
     _wait_for_lines(out, 10, proc)
@@ -224,3 +224,40 @@ def test_bands_measure_follow_reads_a_capture_while_it_is_written(tmp_path, caps
     b = json.loads((tmp_path / "b.json").read_text())
     assert a["phase_s"] == pytest.approx(b["phase_s"], abs=1e-9)
     assert a["total_lines"] == pytest.approx(b["total_lines"], rel=1e-6)
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["capture", "--out", "{tmp}/cap", "--frames", "3"], "picamera2 cannot be imported"),
+    (["capture", "--out", "{tmp}/cap", "--frames", "3", "--replay", "{data}", "--strobe-port",
+      "/nonexistent/ttyACM9"], "/nonexistent/ttyACM9: cannot open the serial port"),
+    (["capture", "--out", "{tmp}/cap", "--replay", "{data}", "--lock"], "--lock needs --strobe-port"),
+    (["capture", "--out", "{tmp}/cap", "--replay", "{data}", "--single", "--exposure-us", "15000"],
+     "an exposure of 14985 us does not cover the readout span 15208 us"),
+    (["strobe", "get", "--port", "/nonexistent/ttyACM9"], "/nonexistent/ttyACM9: cannot open"),
+])
+def test_user_errors_are_one_line_and_exit_2(argv, message, dataset, tmp_path, capsys):
+    pytest.importorskip("serial", reason="could not import pyserial (extra 'hardware')")
+    from scet_render.cli import main
+
+    try:
+        import picamera2  # noqa: F401
+        if "picamera2 cannot be imported" in message:
+            pytest.skip("picamera2 is installed here")
+    except ImportError:
+        pass
+    argv = [a.format(tmp=tmp_path, data=dataset) for a in argv]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
+
+
+def test_an_earlier_capture_is_never_overwritten(dataset, tmp_path, capsys):
+    from scet_render.cli import main
+
+    out = tmp_path / "cap"
+    assert main(["capture", "--out", str(out), "--replay", str(dataset)]) == 0
+    before = (out / "frames.jsonl").read_bytes()
+    assert main(["capture", "--out", str(out), "--replay", str(dataset)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "holds a capture already" in err[0]
+    assert (out / "frames.jsonl").read_bytes() == before
