@@ -166,13 +166,14 @@ def _capture_run(args, *, tracker_worker=None, label="capture"):
     from estimator.capture import CaptureWriter, parse_raw_format
 
     from .capture.stream import stream_capture
-    from .lock import LockFeed, PhaseLockLoop
+    from .lock import LockFeed, PhaseLockLoop, acquire_single
 
     plan = _plan(args)
     strobe_model = _single_check(plan) if args.single else None
     link = _link(args, port=args.strobe_port) if args.strobe_port else None
     lock = None
     cam = None
+    started = False
     try:
         strobe = dict(plan.firmware)
         if link is not None:
@@ -187,20 +188,34 @@ def _capture_run(args, *, tracker_worker=None, label="capture"):
                                                 "total_lines": plan.sensor.total_lines}})
         elif link is not None:
             header["strobe"] = strobe
+        fmt = parse_raw_format(header["raw"]["format"])
+        width = header["raw"]["size"][0]
         if args.lock:
             if link is None:
                 raise ValueError("--lock needs --strobe-port (the lock trims the strobe)")
-            if args.single:
-                raise ValueError("--lock holds banded frames; lock first, then capture --single "
-                                 "(hardware/README.md)")
             lock = PhaseLockLoop(link, frame_period_s=plan.sensor.frame_period_s,
                                  total_lines=plan.sensor.total_lines,
-                                 periods_per_frame=plan.firmware["pulses"])
+                                 periods_per_frame=16 if args.single else plan.firmware["pulses"])
             link.on_reset = lock.restart
+        if args.single and lock is not None:
+            # Calibration frames only once the lock holds: banded frames to lock the period
+            # and phase, then SINGLE with the pulse moved into the shared window (not written).
+            from estimator.capture import decode_raw
+
+            if (args.pulses or 16) != 16:
+                raise ValueError("--single --lock locks on 16 pulses a frame; leave --pulses out")
+            link.apply(pulses=16, remember=False)
+            cam.start()
+            started = True
+            used = acquire_single(cam, link, lock, lambda rows: decode_raw(rows, fmt, width)
+                                  .astype("float64"), visible_rows=header["raw"]["size"][1],
+                                  exposure_s=plan.sensor.exposure_s, timeout_s=args.lock_timeout,
+                                  camera_timeout_s=args.camera_timeout)
+            print(f"{label}: locked and the single pulse in the shared window after {used} frames",
+                  flush=True)
+            header["strobe"] = link.get().to_dict()
         writer = CaptureWriter(args.out, header)
-        fmt = parse_raw_format(header["raw"]["format"])
-        width = header["raw"]["size"][0]
-        feed = LockFeed(lock, fmt.name, width) if lock is not None else None
+        feed = LockFeed(lock, fmt.name, width) if lock is not None and not args.single else None
         first = []
 
         def on_frame(index, rows, md):
@@ -220,7 +235,8 @@ def _capture_run(args, *, tracker_worker=None, label="capture"):
         old = signal.signal(signal.SIGTERM, lambda *a: stop.set()) \
             if threading.current_thread() is threading.main_thread() else None
         try:
-            cam.start()
+            if not started:
+                cam.start()
             frames = args.frames
             if args.replay is not None and not args.realtime:
                 frames = min(frames, len(cam))    # a dataset replayed once
@@ -269,11 +285,12 @@ def _exit_status(report) -> int:
 
 def cmd_capture(args) -> int:
     from .capture.stream import CameraError
+    from .lock import LockTimeout
     from .strobe import StrobeError
 
     try:
         report, lock, link = _capture_run(args)
-    except (StrobeError, CameraError, FileExistsError) as exc:
+    except (StrobeError, CameraError, FileExistsError, LockTimeout) as exc:
         print(f"scet capture: error: {exc}", file=sys.stderr)
         return 2
     lines = _report_line(args, report, lock, link)
@@ -294,6 +311,7 @@ def cmd_run(args) -> int:
     from estimator.tracker import Tracker
 
     from .capture.stream import CameraError, Worker
+    from .lock import LockTimeout
     from .strobe import StrobeError
 
     setup = load_scene(args.scene)
@@ -330,7 +348,7 @@ def cmd_run(args) -> int:
     worker = Worker(track, "tracker", slots=args.track_queue)
     try:
         report, lock, link = _capture_run(args, tracker_worker=worker, label="run")
-    except (StrobeError, CameraError, FileExistsError) as exc:
+    except (StrobeError, CameraError, FileExistsError, LockTimeout) as exc:
         print(f"scet run: error: {exc}", file=sys.stderr)
         return 2
     finally:
@@ -414,7 +432,10 @@ def _capture_args(p) -> None:
     p.add_argument("--channel-response", default="1,1,1,1", help="replay: R,Gr,Gb,B relative response")
     p.add_argument("--strobe-port", help="the strobe board: set to the plan, held for the run")
     p.add_argument("--lock", action="store_true",
-                   help="lock the strobe phase from the frames as they arrive (needs --strobe-port)")
+                   help="lock the strobe phase from the frames as they arrive (needs --strobe-port); "
+                        "with --single: lock first, then capture single-pulse frames")
+    p.add_argument("--lock-timeout", type=finite(1.0, 3600.0), default=30.0,
+                   help="--single --lock: seconds to lock and place the pulse (default 30)")
     p.add_argument("--camera-timeout", type=finite(0.05, 600.0), default=2.0,
                    help="seconds to wait for a frame (and any camera call) before giving up")
     p.add_argument("--queue-frames", type=integer(1, 1000), default=16,

@@ -20,12 +20,18 @@ accumulator, a pending phase shift applied in one period) on a tick of the true 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass
+
+import logging
 
 import numpy as np
 
+log = logging.getLogger(__name__)
+
 __all__ = ["F_CPU_HZ", "LockCommand", "lock_command", "FirmwareTrain", "simulate_lock",
-           "band_phase_rows", "PhaseLockLoop", "LockFeed"]
+           "band_phase_rows", "PhaseLockLoop", "LockFeed", "single_pulse_rows",
+           "single_pulse_shift_rows", "acquire_single"]
 
 F_CPU_HZ = 16_000_000
 TRIM_MAX = 255
@@ -315,3 +321,125 @@ class LockFeed:
         self.worker.close()
         if self.worker.error is not None:
             raise self.worker.error
+
+
+def single_pulse_rows(image_dn: np.ndarray, black_dn: float, lit_share: float = 0.9):
+    """The rows of a single-pulse frame not wholly lit, as (first, last): below ``lit_share``
+    of the brightest row's level (a row the pulse only partly overlaps counts too); None
+    when every row is lit, or "dark" for a frame without light."""
+    img = np.asarray(image_dn, dtype=np.float64)
+    r = np.median(img[:, ::4], axis=1) - black_dn
+    if not r.max() > 2.0:
+        return "dark"
+    dark = np.flatnonzero(r < lit_share * r.max())
+    return None if dark.size == 0 else (int(dark[0]), int(dark[-1]))
+
+
+def single_pulse_shift_rows(dark, *, visible_rows: int, total_lines: float,
+                            exposure_rows: float) -> float:
+    """How far (rows, + later) to move a single pulse, one a frame, so that it lands in the
+    middle of the window every visible row shares, [R(N-1) - Δe, R(0)] (Eqs. (2)-(3)).
+
+    Row y integrates [R(y) - Δe, R(y)]: a pulse at row time y_s ((s - t_0) / line) lights
+    rows y_s .. y_s + E (E = Δe / line) and, one frame earlier, y_s - S .. y_s - S + E; the
+    rows between, (y_s - (S - E), y_s), are dark. Every visible row is lit when that gap lies
+    outside 0 .. N-1, i.e. y_s in [N - 1 - E, 0]; its middle is (N - 1 - E) / 2. From the
+    dark rows seen (:func:`single_pulse_rows`) y_s is their end + 1, or, when they run off
+    the bottom of the frame, their start + (S - E).
+    """
+    n, S, E = int(visible_rows), float(total_lines), float(exposure_rows)
+    want = (n - 1 - E) / 2
+    if dark is None:
+        return 0.0
+    if isinstance(dark, str):
+        return S / 2
+    first, last = dark
+    y_s = first + (S - E) if (last >= n - 1 and first > 0) else last + 1
+    return (want - y_s + S / 2) % S - S / 2
+
+
+class LockTimeout(RuntimeError):
+    """The phase did not lock (or the single pulse did not settle) in time."""
+
+
+def acquire_single(source, link, lock: PhaseLockLoop, decode, *, visible_rows: int,
+                   exposure_s: float, timeout_s: float = 20.0, camera_timeout_s: float = 2.0,
+                   settle_frames: int = 3) -> int:
+    """Before a single-pulse calibration capture (paper Sec. 2.4): lock the strobe on banded
+    frames, then switch the firmware to SINGLE and move the one pulse a frame into the window
+    every row shares; return when ``settle_frames`` frames in a row are lit on every row.
+
+    The exposure of such frames spans ~15 strobe periods, so banded frames show the train as
+    rows with one pulse more or less (a few % modulation at the band pitch), which
+    :func:`band_phase_rows` still measures; the lock's trim then keeps the single pulse from
+    drifting out of the window (at -2,000 ppm untrimmed it would leave a 24-row window in
+    about 24 frames). Frames seen here are not written. ``decode(rows)`` gives the (H, W)
+    frame in DN. Returns the frames used.
+
+    Raises
+    ------
+    LockTimeout
+        Not locked, or the pulse not settled, within ``timeout_s``.
+    """
+    deadline = time.monotonic() + timeout_s
+    first, used = None, 0
+    line_s = lock.line_s
+
+    def take():
+        nonlocal first, used
+        rows, md = source.next_frame(camera_timeout_s)
+        ts = int(md["SensorTimestamp"])
+        first = ts if first is None else first
+        f = int(round((ts - first) * 1e-9 / lock.dt))
+        lock.seen(f)
+        used += 1
+        return f, decode(rows)
+
+    link.set("MODE", "BANDED")
+    while not lock.locked:
+        if time.monotonic() > deadline:
+            raise LockTimeout(f"{link.port}: the strobe phase did not lock within {timeout_s:g} s "
+                              f"({len(lock.commands)} commands)")
+        f, img = take()
+        lock.frame(f, img)
+    link.set("MODE", "SINGLE")
+    settled, wait_until = 0, lock.latest_index + 2 * lock.delay
+    exposure_rows = exposure_s / line_s
+    gap_rows = lock.S - exposure_rows
+    while settled < settle_frames:
+        if time.monotonic() > deadline:
+            raise LockTimeout(f"{link.port}: the single pulse did not settle in the shared "
+                              f"window within {timeout_s:g} s")
+        f, img = take()
+        if f <= wait_until:
+            continue
+        dark = single_pulse_rows(img, lock.black_dn)
+        # A frame the mode switch or a shift passed through shows a wider dark block than the
+        # S - E rows between two pulses: not a position to act on.
+        if isinstance(dark, tuple) and dark[1] - dark[0] + 1 > gap_rows + 3 and \
+                0 < dark[0] and dark[1] < visible_rows - 1:
+            continue
+        if isinstance(dark, tuple) and (dark[1] - dark[0] + 1 > gap_rows + 3):
+            continue
+        shift = single_pulse_shift_rows(dark, visible_rows=visible_rows, total_lines=lock.S,
+                                        exposure_rows=exposure_rows)
+        # Delays only (one pulse a frame: a delay of shift mod S rows lands it in the same
+        # place), in steps no longer than the shared window (checked in between, so the pulse
+        # walks into the window rather than jumping past it). Large advances, which shorten
+        # periods to GAP_MIN past the pulse, moved the single pulse the wrong way in simavr
+        # (which loads OCR1A at once, unlike the double-buffered silicon); delays lengthen
+        # periods and behave on both.
+        window_rows = exposure_rows - (visible_rows - 1)
+        remaining = shift % lock.S
+        shift = float(remaining if remaining <= 2 * window_rows else max(window_rows - 4, 1.0))
+        if shift == 0.0:
+            settled += 1
+            continue
+        settled = 0
+        log.info("single pulse: frame %d, dark rows %s, shift %.1f rows", f,
+                 single_pulse_rows(img, lock.black_dn), shift)
+        s = link.get()
+        tick_s = lock.dt / (lock.M * (s.period_ticks + s.trim_256th / 256))
+        link.shift_phase(int(round(shift * line_s / tick_s)))
+        wait_until = lock.latest_index + 2 * lock.delay
+    return used

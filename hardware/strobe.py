@@ -510,8 +510,17 @@ class StrobeLink:
         """Several settings at once (the period before the width when it grows, so that every
         intermediate state is valid); the settings after them, also written to the settings
         file (``remember``) so that a reset board gets them back."""
-        settings = self._apply(self.get(), pulses=pulses, width_ticks=width_ticks,
-                               period_ticks=period_ticks, trim_256th=trim_256th, mode=mode)
+        for attempt in (0, 1):
+            try:
+                settings = self._apply(self.get(), pulses=pulses, width_ticks=width_ticks,
+                                       period_ticks=period_ticks, trim_256th=trim_256th, mode=mode)
+                break
+            except _BoardReset:       # reset between two SETs: restore, then apply again
+                self._after_greeting()
+            except _PortFailed as exc:
+                self._reconnect(f"the port failed ({exc})")
+        else:
+            raise StrobeError(f"{self.port}: the board reset again while the settings were applied")
         if remember:
             self.store.save(settings)
         return settings

@@ -125,13 +125,13 @@ class StrobeRigCamera:
                 self.t0_s = float(edges_s[0]) + 0.37 * self.dt   # an arbitrary start phase
             # A sensor never falls behind: when rendering did, the frames it missed were never
             # delivered (drops, as when the taker is late), and the newest complete one is next.
-            newest = int((edges_s[-1] - self.exposure_s - self.t0_s) / self.dt) - 1
+            newest = int((edges_s[-1] - self.t0_s) / self.dt) - 2
             if newest > k:
                 self.skipped += newest - k
                 k = newest
             t_k = self.t0_s + k * self.dt
-            # Frame k is complete when the board has run past its last row's exposure.
-            if edges_s[-1] < t_k + self.dt + self.exposure_s:
+            # Frame k is complete when the board has run past its last row's readout.
+            if edges_s[-1] < t_k + self.dt:
                 time.sleep(0.002)
                 continue
             near = edges_s[(edges_s > t_k - self.exposure_s - self.pulse_s) & (edges_s < t_k + self.dt)]

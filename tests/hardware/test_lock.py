@@ -142,3 +142,45 @@ def test_the_lock_in_the_capture_loop_holds_the_bands_through_a_reset(firmware, 
     # Without the lock the bands would have moved 1.05 rows a frame (-2,000 ppm).
     assert lock.locked
     assert lock.commands[-1][1].period_ticks == 16603
+
+
+def test_single_pulse_frames_are_captured_once_the_lock_holds(firmware, tmp_path):
+    """Calibration frames (one pulse a frame, an exposure covering the readout): the strobe
+    is locked on banded frames first (at -2,000 ppm untrimmed the pulse would leave the
+    shared window in ~24 frames), then switched to SINGLE and moved into the window; every
+    frame captured after that is lit on all 480 rows, evenly."""
+    pytest.importorskip("serial", reason="could not import pyserial (extra 'hardware')")
+    from estimator.capture import CaptureFolder, CaptureWriter, decode_raw, parse_raw_format
+    from scet_hardware.capture import stream_capture
+    from scet_hardware.capture.rig import StrobeRigCamera
+    from scet_hardware.firmware import SimulatedBoard
+    from scet_hardware.lock import PhaseLockLoop, acquire_single, single_pulse_rows, split_period
+    from scet_hardware.strobe import StrobeLink
+    from tests.hardware.conftest import BOOT_S
+
+    dt, S, M, exposure = 16636.35e-6, 524, 16, 503 * 16636.35e-6 / 524
+    fmt = parse_raw_format("SGBRG10_CSI2P")
+    with SimulatedBoard(firmware, tmp_path / "board", boot_s=BOOT_S, edges=True) as board:
+        with StrobeLink(board.port, settings=tmp_path / "strobe.json") as link:
+            period, trim = split_period(dt / M * 16e6)
+            link.apply(period_ticks=period, trim_256th=trim)
+            lock = PhaseLockLoop(link, frame_period_s=dt, total_lines=S, periods_per_frame=M)
+            cam = StrobeRigCamera(board, ppm=-2000.0, total_lines=S, frame_period_s=dt,
+                                  exposure_s=exposure, signal_dn=40.0)
+            cam.start()
+            try:
+                used = acquire_single(cam, link, lock,
+                                      lambda rows: decode_raw(rows, fmt, 640).astype(float),
+                                      visible_rows=480, exposure_s=exposure, timeout_s=30.0)
+                report = stream_capture(cam, CaptureWriter(tmp_path / "cap", cam.header()),
+                                        frames=12, skip_frames=0, timeout_s=3.0)
+            finally:
+                cam.stop()
+            assert link.get().mode == "single"
+    assert report.state == "complete" and used < 30 / dt
+    for fr in CaptureFolder(tmp_path / "cap").frames():
+        if fr.image is None:
+            continue
+        assert single_pulse_rows(fr.image, 16.0) is None      # no dark row
+        rows = np.median(fr.image, axis=1) - 16.0
+        assert rows.min() > 0.8 * rows.max()          # one whole pulse on every row
