@@ -8,6 +8,11 @@ frames with a ``timing.json`` sidecar) as they appear, in index order, and stops
   when it is done), or a rendered dataset's last frame (its manifest's frame count);
 - or after ``timeout_s`` with no new frame.
 
+A capture folder (``capture.json``, written by ``scet capture`` / ``scet run`` as frames
+arrive) is followed through :class:`estimator.capture.CaptureFollower`: frames in time-stamp
+order as their lines reach ``frames.jsonl``, dropped ones as None, the end when
+``capture.json`` leaves the state ``capturing``.
+
 A frame that is not there while a later one is was dropped: it comes as None with "missing"
 (the tracker gives its bands NaN samples). A file that does not decode yet (being written) is
 read again until it does or the timeout passes. Frame starts come from ``timing.json`` where
@@ -27,6 +32,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from .capture import CaptureError, CaptureFollower, is_capture_folder
 from .formats import FRAMES_DIR, MANIFEST_NAME, TIMING_NAME, read_json
 from .folders import (
     TrackSummary,
@@ -93,6 +99,9 @@ def follow_frames(folder, setup: Setup, *, timeout_s: float = 5.0, poll_s: float
     expected = _expected_frames(folder)
     f, last = None, clock()
     while True:
+        if f is None and is_capture_folder(folder):
+            yield from _follow_capture(folder, setup, timeout_s, poll_s, clock, sleep)
+            return
         if f is None:
             f = _first_index(folder)
         if f is not None and expected is not None and f >= expected:
@@ -118,6 +127,17 @@ def follow_frames(folder, setup: Setup, *, timeout_s: float = 5.0, poll_s: float
         if (folder / END_NAME).exists() or clock() - last > timeout_s:
             return
         sleep(poll_s)
+
+
+def _follow_capture(folder: Path, setup: Setup, timeout_s, poll_s, clock, sleep):
+    follower = CaptureFollower(folder, black_level_out_dn=setup.sensor.black_level_dn,
+                               size_px=(setup.camera.width_px, setup.camera.height_px),
+                               timeout_s=timeout_s, poll_s=poll_s, clock=clock, sleep=sleep)
+    try:
+        for fr in follower.frames():
+            yield fr.index, fr.start_s, fr.image, fr.reason
+    except CaptureError as exc:
+        raise TrackerInputError(str(exc)) from None
 
 
 def track_following(folder, setup: Setup, calibration, out_csv, *, method: str = "polynomial",

@@ -126,18 +126,30 @@ def run_script(build: dict, workdir, sends=(), *, until_ms: float = 100.0,
 
 class SimulatedBoard:
     """The firmware running in simavr behind a pseudo-terminal, paced to the wall clock: a
-    serial port at :attr:`port` that any serial program can open (context manager)."""
+    serial port at :attr:`port` that any serial program can open (context manager).
 
-    def __init__(self, build: dict, workdir):
+    It resets as an Uno does (``firmware/sim/simstrobe.c``): opening the port after a close
+    that dropped DTR resets the AVR, and the bootloader takes the host's bytes for
+    ``boot_s`` (an Uno's Optiboot: about 1 s; tests pass less to stay fast) before the
+    firmware starts and greets. :meth:`reset` resets it mid-session, :meth:`replug` unplugs
+    and replugs it (the open port dies). ``edges=True`` logs every rising strobe edge
+    (:meth:`edge_cycles`)."""
+
+    def __init__(self, build: dict, workdir, *, boot_s: float = 1.0, edges: bool = False):
         self.workdir = Path(workdir)
         self.workdir.mkdir(parents=True, exist_ok=True)
         self.port = str(self.workdir / "ttySTROBE")
+        self.boot_s = float(boot_s)
+        self.edges_path = self.workdir / "edges.u64" if edges else None
         self._build = build
         self._proc = None
 
     def __enter__(self) -> "SimulatedBoard":
-        self._proc = subprocess.Popen([str(self._build["simstrobe"]), "--pty", self.port,
-                                       str(self._build["elf"])], cwd=self.workdir,
+        cmd = [str(self._build["simstrobe"]), "--pty", self.port, "--boot-ms",
+               repr(self.boot_s * 1e3)]
+        if self.edges_path is not None:
+            cmd += ["--edges", str(self.edges_path)]
+        self._proc = subprocess.Popen(cmd + [str(self._build["elf"])], cwd=self.workdir,
                                       stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         deadline = time.monotonic() + 10.0
         while not os.path.exists(self.port):
@@ -147,6 +159,20 @@ class SimulatedBoard:
                 raise FirmwareError(f"the simulated board did not start: {err}")
             time.sleep(0.01)
         return self
+
+    def reset(self) -> None:
+        """Reset the board now (a brown-out or watchdog reset in the middle of a session)."""
+        self._proc.send_signal(signal.SIGUSR1)
+
+    def replug(self) -> None:
+        """Unplug and replug the board: the open port fails, a new one appears at
+        :attr:`port` and the board resets."""
+        self._proc.send_signal(signal.SIGUSR2)
+
+    def edge_cycles(self) -> np.ndarray:
+        """Simulated cycle (16 MHz) of every rising strobe edge so far."""
+        data = self.edges_path.read_bytes() if self.edges_path.is_file() else b""
+        return np.frombuffer(data[:len(data) // 8 * 8], dtype="<u8")
 
     def close(self) -> None:
         if self._proc is not None and self._proc.poll() is None:

@@ -2,13 +2,24 @@
 positions of its wire turns, the glint sources, as a scene light list.
 
 The part is a 90 deg arc of radius 33 mm, 2 mm wide (along the arc plane's normal), with a
-radial thickness the paper does not give (1.5 mm [G], HARDWARE.md Sec. 11), and a mount: a
-stem from the middle of the arc's outside to a crossbar, to clamp or glue. It is one outline in
-the arc plane extruded by the width, so the mesh is closed by construction (checked with
-trimesh). The wire (35 turns of 0.8 mm, spread evenly end to end over the arc) is wound around
-the strip; each turn's stretch on the inner face shines as a point source, placed on the wire's
-axis at radius R - d/2 and mid-width (the simple model of HARDWARE.md Sec. 11, within ~1 mm of
-the true highlight).
+radial thickness the paper does not give (1.5 mm [G], HARDWARE.md Sec. 11). The wire (35 turns
+of 0.8 mm, spread evenly end to end over the 90 deg) is wound around the strip; each turn's
+stretch on the inner face shines as a point source, placed on the wire's axis at radius
+R - d/2 and mid-width (the simple model of HARDWARE.md Sec. 11, within ~1 mm of the true
+highlight). What the part must let the winding do:
+
+* every turn goes all the way round the strip, so nothing may stand on the outer face where a
+  turn passes: the part is mounted by two lugs beyond the end turns (a stem at mid-arc, as
+  before, blocked turns 16-18 of 35);
+* the end turns sit on the strip, not half off it: the strip runs on past the first and last
+  turn by the wire's radius plus a clearance before the lug starts;
+* a V notch on the outer face at each turn's angle (depth ``notch_depth_mm``, as wide as the
+  wire) holds the turn where the light list says it is; the inner face, where the glints are,
+  stays smooth.
+
+The part is one outline in the arc plane extruded by the width, so the mesh is closed by
+construction (checked with trimesh); :func:`turn_clearance_mm` measures from the outline
+itself how much room each turn has.
 """
 
 from __future__ import annotations
@@ -21,15 +32,16 @@ import numpy as np
 
 from estimator.formats import atomic_file, atomic_write
 
-__all__ = ["MirrorParams", "turn_positions_local_m", "mirror_outline_mm", "mirror_mesh",
-           "light_list_toml", "write_mirror"]
+__all__ = ["MirrorParams", "turn_angles_rad", "turn_positions_local_m", "mirror_outline_mm",
+           "turn_clearance_mm", "mirror_mesh", "light_list_toml", "write_mirror"]
 
 
 @dataclass(frozen=True, slots=True)
 class MirrorParams:
     """The mirror, in millimetres and degrees, and where its arc sits in the scene (the
     ``arc`` light group's keys of the scene format: first light, direction to the arc's
-    centre, arc plane normal; the pose is applied by the scene file)."""
+    centre, arc plane normal; the pose is applied by the scene file). ``span_deg`` is the
+    angle from the first turn to the last; the strip runs on beyond both."""
 
     radius_mm: float = 33.0
     span_deg: float = 90.0
@@ -37,30 +49,43 @@ class MirrorParams:
     thickness_mm: float = 1.5
     turns: int = 35
     wire_diameter_mm: float = 0.8
-    stem_length_mm: float = 8.0
-    stem_width_mm: float = 3.0
-    bar_length_mm: float = 16.0
-    bar_width_mm: float = 3.0
+    #: Free arc (mm, on the outer face) between an end turn's wire and its lug.
+    clearance_mm: float = 0.5
+    lug_length_mm: float = 8.0
+    lug_width_mm: float = 3.0
+    notch_depth_mm: float = 0.3
     first_m: tuple = (-0.010, 0.020, -0.015)
     center_direction: tuple = (0.0, 0.0, -1.0)
     normal: tuple = (0.0, 1.0, 0.0)
 
     def check(self) -> None:
         for name in ("radius_mm", "span_deg", "width_mm", "thickness_mm", "wire_diameter_mm",
-                     "stem_length_mm", "stem_width_mm", "bar_length_mm", "bar_width_mm"):
+                     "clearance_mm", "lug_length_mm", "lug_width_mm"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0):
                 raise ValueError(f"mirror parameter {name} must be positive, got {v!r}")
-        if not 0 < self.span_deg < 360:
-            raise ValueError(f"mirror parameter span_deg must be in (0, 360), got {self.span_deg!r}")
+        if not (math.isfinite(self.notch_depth_mm) and 0 <= self.notch_depth_mm < self.thickness_mm / 2):
+            raise ValueError(f"mirror parameter notch_depth_mm must be in [0, thickness_mm / 2), "
+                             f"got {self.notch_depth_mm!r}")
         if self.turns < 1:
             raise ValueError(f"mirror parameter turns must be >= 1, got {self.turns!r}")
+        if not 0 < self.span_deg + 2 * math.degrees(self.end_angle_rad) < 360:
+            raise ValueError(f"mirror parameter span_deg must leave room for the end lugs within "
+                             f"360 deg, got {self.span_deg!r}")
         pitch = self.radius_mm * math.radians(self.span_deg) / max(self.turns - 1, 1)
         if self.turns > 1 and pitch < self.wire_diameter_mm:
             raise ValueError(f"{self.turns} turns of {self.wire_diameter_mm} mm wire do not fit on "
                              f"the arc (pitch {pitch:.3f} mm)")
-        if self.stem_width_mm >= self.radius_mm * math.radians(self.span_deg):
-            raise ValueError("mirror parameter stem_width_mm is wider than the arc")
+        if self.lug_width_mm >= self.radius_mm + self.thickness_mm:
+            raise ValueError("mirror parameter lug_width_mm is wider than the arc's radius")
+
+    @property
+    def end_angle_rad(self) -> float:
+        """How far (rad) the strip runs on past the first and the last turn: the lug's width
+        on the outer face, plus the wire's radius and the clearance."""
+        r_out = self.radius_mm + self.thickness_mm
+        return (math.asin(min(self.lug_width_mm / r_out, 1.0))
+                + (self.wire_diameter_mm / 2 + self.clearance_mm) / r_out)
 
 
 def _frame(p: MirrorParams):
@@ -73,6 +98,11 @@ def _frame(p: MirrorParams):
     return u, np.cross(n, u), n
 
 
+def turn_angles_rad(p: MirrorParams = MirrorParams()) -> np.ndarray:
+    """(turns,) angle of each turn on the arc, 0 at the first, ``span_deg`` at the last."""
+    return math.radians(p.span_deg) * np.arange(p.turns) / max(p.turns - 1, 1)
+
+
 def turn_positions_local_m(p: MirrorParams = MirrorParams()) -> np.ndarray:
     """(turns, 3) glint-source positions (m) in the scene frame before the group's pose:
     on the arc of the scene's ``arc`` group with the same ``first_m``, ``center_direction``
@@ -81,72 +111,134 @@ def turn_positions_local_m(p: MirrorParams = MirrorParams()) -> np.ndarray:
     u, v, _ = _frame(p)
     r = p.radius_mm * 1e-3
     center = np.asarray(p.first_m, float) + r * (-u)
-    a = math.radians(p.span_deg) * np.arange(p.turns) / max(p.turns - 1, 1)
+    a = turn_angles_rad(p)
     rho = (p.radius_mm - p.wire_diameter_mm / 2) * 1e-3
     return center + rho * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v)
 
 
+def _polar(r, a):
+    return np.array([r * math.cos(a), r * math.sin(a)])
+
+
 def mirror_outline_mm(p: MirrorParams = MirrorParams(), segments: int = 90) -> np.ndarray:
     """(n, 2) counter-clockwise outline of the part in the arc plane (mm, origin at the arc's
-    centre, angle 0 at the first turn): the band R..R+t and the mount on its outside."""
+    centre, angle 0 at the first turn): the band R..R+t from -e to span + e (e =
+    :attr:`MirrorParams.end_angle_rad`), a V notch on the outer face at each turn, and a lug
+    outward at each end, its end face flush with the strip's."""
     p.check()
-    span = math.radians(p.span_deg)
+    span, e = math.radians(p.span_deg), p.end_angle_rad
     r_in, r_out = p.radius_mm, p.radius_mm + p.thickness_mm
-    mid = span / 2
-    half = p.stem_width_mm / 2
-    # The stem leaves the outer face where its straight sides cross the outer circle.
-    d = math.asin(min(half / r_out, 1.0))
-    a_out = np.linspace(0, span, segments + 1)
-    left = a_out[a_out < mid - d]
-    right = a_out[a_out > mid + d]
-    er = np.array([math.cos(mid), math.sin(mid)])
-    et = np.array([-math.sin(mid), math.cos(mid)])
-    base = r_out * math.cos(d)
-    foot = base + p.stem_length_mm
-    stem_and_bar = [base * er - half * et,
-                    foot * er - half * et,
-                    foot * er - p.bar_length_mm / 2 * et,
-                    (foot + p.bar_width_mm) * er - p.bar_length_mm / 2 * et,
-                    (foot + p.bar_width_mm) * er + p.bar_length_mm / 2 * et,
-                    foot * er + p.bar_length_mm / 2 * et,
-                    foot * er + half * et,
-                    base * er + half * et]
-    outer = ([r_out * np.array([math.cos(a), math.sin(a)]) for a in left] + stem_and_bar
-             + [r_out * np.array([math.cos(a), math.sin(a)]) for a in right])
-    inner = [r_in * np.array([math.cos(a), math.sin(a)]) for a in np.linspace(span, 0, segments + 1)]
-    return np.array(outer + inner)
+    w, tip = p.lug_width_mm, p.radius_mm + p.thickness_mm + p.lug_length_mm
+    a0, a1 = -e, span + e
+    lug_foot = math.asin(w / r_out)     # where a lug's inner side meets the outer face
+
+    def et(a):
+        return np.array([-math.sin(a), math.cos(a)])
+
+    # The outer face, angle rising: arc samples, each notch as three points (its edges on the
+    # face and its bottom), samples inside a notch left out.
+    half = (p.wire_diameter_mm / 2) / r_out
+    notches = turn_angles_rad(p) if p.notch_depth_mm > 0 else np.zeros(0)
+    lo, hi = a0 + lug_foot, a1 - lug_foot
+    points = [(a, r_out) for a in np.linspace(lo, hi, segments + 1)
+              if not np.any(np.abs(a - notches) <= half * 1.001)]
+    for a in notches:
+        points += [(a - half, r_out), (a, r_out - p.notch_depth_mm), (a + half, r_out)]
+    points.sort()
+    outer = [_polar(r, a) for a, r in points]
+    # Each lug: its end face on the strip's radial end line, its inner side parallel to it at
+    # the lug's width, meeting the outer face at the first (last) arc sample.
+    start_lug = [tip * np.array([math.cos(a0), math.sin(a0)]),
+                 tip * np.array([math.cos(a0), math.sin(a0)]) + w * et(a0)]
+    end_lug = [tip * np.array([math.cos(a1), math.sin(a1)]) - w * et(a1),
+               tip * np.array([math.cos(a1), math.sin(a1)])]
+    inner = [_polar(r_in, a) for a in np.linspace(a1, a0, segments + 1)]
+    return np.array(start_lug + outer + end_lug + inner)
+
+
+def _inside(poly: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """(m,) whether each of (m, 2) points lies inside the polygon (even-odd ray casting)."""
+    x, y = pts[:, 0][:, None], pts[:, 1][:, None]
+    x0, y0 = poly[:, 0][None, :], poly[:, 1][None, :]
+    x1, y1 = np.roll(poly[:, 0], -1)[None, :], np.roll(poly[:, 1], -1)[None, :]
+    crosses = (y0 > y) != (y1 > y)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xc = x0 + (y - y0) * (x1 - x0) / (y1 - y0)
+    return (crosses & (x < xc)).sum(axis=1) % 2 == 1
+
+
+def turn_clearance_mm(p: MirrorParams = MirrorParams(), outlines=None, *, step_mm: float = 0.01,
+                      reach_mm: float = 10.0) -> dict:
+    """Room for each turn, measured on the outline (:func:`mirror_outline_mm`).
+
+    Parameters
+    ----------
+    outlines : list of (n, 2) float, optional
+        The part as polygons in the arc plane (mm; a point inside any is material); default
+        ``[mirror_outline_mm(p)]``.
+    reach_mm : float
+        How far along the inner face the strip is followed (``support_mm`` saturates there).
+
+    Returns
+    -------
+    dict
+        ``blocked`` (turns,) bool: part material lies in the wire's path round the outer
+        face (radially from the notch bottom to one wire diameter above the face, across the
+        wire's width); ``support_mm`` (turns,) float: the strip under the turn on the inner
+        face, from the wire's centre to the strip's nearer end, measured along the arc (at
+        least the wire's radius: the turn sits wholly on the strip).
+    """
+    polys = [mirror_outline_mm(p)] if outlines is None else [np.asarray(o, float) for o in outlines]
+
+    def inside(pts):
+        return np.logical_or.reduce([_inside(poly, pts) for poly in polys])
+
+    r_in, r_out = p.radius_mm, p.radius_mm + p.thickness_mm
+    rw = p.wire_diameter_mm / 2
+    blocked, support = [], []
+    radii = np.arange(r_out + 1e-3, r_out + 2 * rw + 1e-3, step_mm)
+    for a in turn_angles_rad(p):
+        across = np.linspace(-rw, rw, 9)
+        pts = np.concatenate([np.c_[r * np.cos(a) - across * np.sin(a),
+                                    r * np.sin(a) + across * np.cos(a)] for r in radii])
+        blocked.append(bool(inside(pts).any()))
+        # Along the inner face (just inside the part), each way until the strip ends.
+        s = np.arange(1, int(reach_mm / step_mm) + 1) * step_mm
+        far = []
+        for sign in (-1.0, 1.0):
+            ang = a + sign * s / r_in
+            out = ~inside(np.c_[(r_in + 1e-3) * np.cos(ang), (r_in + 1e-3) * np.sin(ang)])
+            far.append(float(s[np.argmax(out)] - step_mm) if out.any() else float(s[-1]))
+        support.append(min(far))
+    return {"blocked": np.array(blocked), "support_mm": np.array(support)}
 
 
 def _ear_clip(poly: np.ndarray) -> np.ndarray:
-    """(n - 2, 3) triangles of a simple counter-clockwise polygon (ear clipping)."""
+    """(n - 2, 3) triangles of a simple counter-clockwise polygon (ear clipping; the test of
+    the other vertices against a candidate ear is vectorised, the notches make many reflex
+    vertices)."""
+    poly = np.asarray(poly, dtype=np.float64)
     idx = list(range(len(poly)))
     tris = []
 
     def cross(o, a, b):
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+        return (a[..., 0] - o[..., 0]) * (b[..., 1] - o[..., 1]) - (a[..., 1] - o[..., 1]) * (b[..., 0] - o[..., 0])
 
-    guard = 0
     while len(idx) > 3:
-        guard += 1
-        if guard > 10 * len(poly) ** 2:
-            raise ValueError("mirror outline is not a simple polygon")
         for k in range(len(idx)):
             i0, i1, i2 = idx[k - 1], idx[k], idx[(k + 1) % len(idx)]
             a, b, c = poly[i0], poly[i1], poly[i2]
             if cross(a, b, c) <= 1e-12:
                 continue
-            inside = False
-            for j in idx:
-                if j in (i0, i1, i2):
-                    continue
-                q = poly[j]
-                if cross(a, b, q) >= 0 and cross(b, c, q) >= 0 and cross(c, a, q) >= 0:
-                    inside = True
-                    break
-            if not inside:
-                tris.append((i0, i1, i2))
-                del idx[k]
-                break
+            rest = np.array([j for j in idx if j not in (i0, i1, i2)], dtype=np.int64)
+            q = poly[rest]
+            if rest.size and np.any((cross(a, b, q) >= 0) & (cross(b, c, q) >= 0) & (cross(c, a, q) >= 0)):
+                continue
+            tris.append((i0, i1, i2))
+            del idx[k]
+            break
+        else:
+            raise ValueError("mirror outline is not a simple polygon")
     tris.append(tuple(idx))
     return np.array(tris)
 

@@ -68,12 +68,21 @@ def cmd_bands_measure(args) -> int:
     from estimator.capture.timing import measure_capture
     from estimator.formats import atomic_write
 
-    total = max(CaptureFolder(args.measure).index) + 1
-    bar, update = progress_bar(total, "frame", "measuring bands")
-    try:
-        m = measure_capture(args.measure, progress=update)
-    finally:
-        bar.close()
+    if getattr(args, "follow", False):
+        # Live: one line a frame as the capture is written (scet capture / scet run).
+        def live(fb):
+            print(f"frame {fb.index}: " + (f"phase {fb.phase_rows:.2f} rows, pitch {fb.pitch_rows:.3f}"
+                                           if fb.status == "bands" else fb.status), flush=True)
+
+        m = measure_capture(args.measure, follow=True, timeout_s=args.follow_timeout,
+                            on_frame=live)
+    else:
+        total = max(CaptureFolder(args.measure).index) + 1
+        bar, update = progress_bar(total, "frame", "measuring bands")
+        try:
+            m = measure_capture(args.measure, progress=update)
+        finally:
+            bar.close()
     line_us = m.frame_period_s / m.total_lines * 1e6
     rows = [["total lines S", f"{m.total_lines:.3f}", f"{m.total_lines_sd:.3f}", "lines"],
             ["exposure", f"{m.exposure_s * 1e6:.2f}", f"{m.exposure_s_sd * 1e6:.2f}", "us"],
@@ -352,6 +361,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="measure S, exposure, pulse width, phase and strobe clock of a capture "
                         "folder from its bands (no scene needed)")
     p.add_argument("--json", type=Path, metavar="OUT", help="with --measure: write the result here")
+    p.add_argument("--follow", action="store_true",
+                   help="with --measure: read the capture while it is written, a line a frame")
+    p.add_argument("--follow-timeout", type=finite(0.01, 3600.0), default=5.0,
+                   help="with --follow: seconds without a new frame before stopping (default 5)")
     p.set_defaults(func=cmd_bands)
 
     p = sub.add_parser("simulate", help="feature-level simulation: glints of every light for every target")

@@ -19,7 +19,12 @@ Layout::
     frames/NNNNNN.raw   the raw buffer: H rows of ``stride`` bytes
     labels.jsonl    optional: calibration targets, as in rendered datasets
 
-``capture.json`` is written last: a folder that has it is complete. Frames are indexed by time:
+Version 1: ``capture.json`` is written last, a folder that has it is complete. Version 2
+(:mod:`estimator.capture.writer`): ``capture.json`` is written first with ``"state":
+"capturing"`` and again at the end with the final state and a ``summary``; frames are listed
+as they are written, so a capture cut short keeps what it wrote (the reader reads it and logs
+that the capture did not finish), and :mod:`estimator.capture.follow` reads one while it is
+being written. Frames are indexed by time:
 frame f is the one whose SensorTimestamp is f frame periods after the first (the period is the
 median difference of consecutive timestamps), so dropped frames leave gaps in the indices.
 """
@@ -47,6 +52,8 @@ __all__ = ["CAPTURE_FORMAT", "CAPTURE_VERSION", "CAPTURE_NAME", "FRAMES_LIST_NAM
            "capture_header", "write_capture"]
 
 CAPTURE_FORMAT, CAPTURE_VERSION = "scet-capture", 1
+#: Versions read: 1 (capture.json last) and 2 (first, with a state; estimator.capture.writer).
+CAPTURE_VERSIONS = (1, 2)
 CAPTURE_NAME, FRAMES_LIST_NAME = "capture.json", "frames.jsonl"
 #: picamera2 metadata every frame line must carry.
 METADATA_KEYS = ("SensorTimestamp", "ExposureTime", "FrameDuration", "AnalogueGain",
@@ -111,13 +118,19 @@ class CaptureFolder:
         Expected frame size (the scene camera's); a capture of another size is refused.
     """
 
-    def __init__(self, folder, *, black_level_out_dn: float = 16.0, size_px=None):
+    def __init__(self, folder, *, black_level_out_dn: float = 16.0, size_px=None,
+                 read_list: bool = True):
         self.path = Path(folder)
         head = self.path / CAPTURE_NAME
         if not head.is_file():
             raise CaptureError(f"{self.path}: no {CAPTURE_NAME} (not a capture, or an incomplete one)")
         self.header = read_json(head, CaptureError)
-        check_format(self.header, head, CAPTURE_FORMAT, CAPTURE_VERSION, CaptureError)
+        self.version = check_format(self.header, head, CAPTURE_FORMAT, CAPTURE_VERSIONS, CaptureError)
+        self.state = self.header.get("state", "complete") if self.version >= 2 else "complete"
+        from .writer import STATES
+
+        if self.state not in STATES:
+            raise CaptureError(f"{head}: key 'state' is {self.state!r}, expected one of {STATES}")
         raw = self.header.get("raw")
         if not isinstance(raw, dict):
             raise CaptureError(f"{head}: key 'raw' must be an object with format, size, stride")
@@ -152,7 +165,17 @@ class CaptureFolder:
                                    _number(self.header, "timestamp_offset_s", str(head)))
         self.black_level_out_dn = float(black_level_out_dn)
         self._list = self.path / FRAMES_LIST_NAME
+        if not read_list:
+            return
         self.entries, self.problems = self._read_list()
+        if self.state == "capturing":
+            self.problems.insert(0, f"{head}: key 'state' is 'capturing': the capture was cut "
+                                    f"short (or is still being written); the {len(self.entries)} "
+                                    "frame(s) listed so far are read")
+        elif self.state != "complete":
+            why = (self.header.get("summary") or {}).get("stopped", "")
+            self.problems.insert(0, f"{head}: the capture ended {self.state}"
+                                    + (f" ({why})" if why else ""))
         self.frame_period_s, self.index = self._index()
 
     # ----------------------------------------------------------------------- frame list
@@ -163,26 +186,11 @@ class CaptureFolder:
             raise CaptureError(f"{self._list}: cannot read the frame list ({exc})") from None
         entries, problems = [], []
         for number, line in enumerate(lines, start=1):
-            where = f"{self._list}, line {number}"
-            if not line.strip():
-                continue
-            try:
-                d = parse_json(line, where, CaptureError)
-            except CaptureError as exc:
-                problems.append(f"{exc}; frame left out")
-                continue
-            try:
-                if not isinstance(d, dict):
-                    raise CaptureError(f"{where}: expected a JSON object")
-                if "SensorTimestamp" not in d:
-                    raise CaptureError(f"{where}: metadata key 'SensorTimestamp' missing")
-                if not 0 <= _number(d, "SensorTimestamp", where, integer=True) <= MAX_TIMESTAMP_NS:
-                    raise CaptureError(f"{where}: key 'SensorTimestamp' must be in [0, "
-                                       f"{MAX_TIMESTAMP_NS}] ns")
-            except CaptureError as exc:
-                problems.append(f"{exc}; frame left out")
-                continue
-            entries.append((number, d, _frame_problem(d, where)))
+            entry, problem = parse_list_line(line, number, self._list)
+            if problem is not None:
+                problems.append(problem)
+            elif entry is not None:
+                entries.append(entry)
         if not entries:
             raise CaptureError(f"{self._list}: no frame with a SensorTimestamp"
                                + (f" ({problems[0]})" if problems else ""))
@@ -288,6 +296,29 @@ class CaptureFolder:
                 yield CaptureFrame(f, start, None, str(exc), d)
                 continue
             yield CaptureFrame(f, start, image, None, d)
+
+
+def parse_list_line(line: str, number: int, path) -> tuple[tuple | None, str | None]:
+    """One line of ``frames.jsonl``: ((line number, metadata, problem or None), None), or
+    (None, why it is left out), or (None, None) for a blank line."""
+    where = f"{path}, line {number}"
+    if not line.strip():
+        return None, None
+    try:
+        d = parse_json(line, where, CaptureError)
+    except CaptureError as exc:
+        return None, f"{exc}; frame left out"
+    try:
+        if not isinstance(d, dict):
+            raise CaptureError(f"{where}: expected a JSON object")
+        if "SensorTimestamp" not in d:
+            raise CaptureError(f"{where}: metadata key 'SensorTimestamp' missing")
+        if not 0 <= _number(d, "SensorTimestamp", where, integer=True) <= MAX_TIMESTAMP_NS:
+            raise CaptureError(f"{where}: key 'SensorTimestamp' must be in [0, "
+                               f"{MAX_TIMESTAMP_NS}] ns")
+    except CaptureError as exc:
+        return None, f"{exc}; frame left out"
+    return (number, d, _frame_problem(d, where)), None
 
 
 def _frame_problem(d: dict, where: str) -> str | None:

@@ -276,15 +276,30 @@ def _mean_sd(v: np.ndarray, sd_one: np.ndarray) -> tuple[float, float]:
     return float(v.mean()), float(np.nanmax([v.std(ddof=1) / math.sqrt(v.size), floor]))
 
 
-def measure_capture(folder, *, progress=None) -> CaptureTiming:
+def measure_capture(folder, *, progress=None, follow: bool = False, timeout_s: float = 5.0,
+                    on_frame=None) -> CaptureTiming:
     """Measure S, Δe, Δs, the per-frame phase and the strobe clock's mismatch of a capture.
+
+    ``follow``: read the capture while it is written (:class:`estimator.capture.follow.
+    CaptureFollower`, ending when the capture does or after ``timeout_s`` without a frame);
+    ``on_frame(FrameBands)`` after each frame (live output); ``progress(done, total)`` with
+    the total so far when following.
 
     Raises
     ------
     CaptureError
         The folder cannot be read, has no strobe settings, or has no banded frame.
     """
-    cap = CaptureFolder(folder)
+    if follow:
+        from .follow import CaptureFollower
+
+        follower = CaptureFollower(folder, timeout_s=timeout_s)
+        cap = follower.wait_open()
+        frame_iter, total = follower.frames(), None
+    else:
+        follower = None
+        cap = CaptureFolder(folder)
+        frame_iter, total = cap.frames(), max(cap.index) + 1
     strobe = cap.header.get("strobe")
     where = f"{cap.path / 'capture.json'}"
     if not isinstance(strobe, dict) or not isinstance(strobe.get("period_ticks"), int):
@@ -292,11 +307,8 @@ def measure_capture(folder, *, progress=None) -> CaptureTiming:
                            "(period_ticks, trim_256th, width_ticks, pulses) to measure the timing")
     clk_nom_s = (strobe["period_ticks"] + float(strobe.get("trim_256th", 0)) / 256) / F_STROBE_HZ
     pulse_nom_s = float(strobe.get("width_ticks", 0)) / F_STROBE_HZ
-    dt = cap.frame_period_s
-    M = int(round(dt / clk_nom_s))
     frames, expo_meta, starts = [], [], []
-    total = max(cap.index) + 1
-    for k, fr in enumerate(cap.frames()):
+    for k, fr in enumerate(frame_iter):
         if fr.image is None:
             frames.append(FrameBands(fr.index, "missing", fr.reason or ""))
         else:
@@ -308,8 +320,19 @@ def measure_capture(folder, *, progress=None) -> CaptureTiming:
                                         pitch_guess_rows=guess, rise_guess_rows=rise))
             if isinstance(fr.metadata.get("ExposureTime"), (int, float)):
                 expo_meta.append(float(fr.metadata["ExposureTime"]) * 1e-6)
+        if on_frame is not None:
+            on_frame(frames[-1])
         if progress is not None:
-            progress(k + 1, total)
+            progress(k + 1, total if total is not None else k + 1)
+    if follower is None:
+        dt = cap.frame_period_s
+    else:
+        limits = (cap.header.get("controls") or {}).get("FrameDurationLimits") or [0]
+        dt = follower.frame_period_s or float(limits[0]) * 1e-6
+        if not dt > 0:
+            raise CaptureError(f"{cap.path}: fewer than two frames and no FrameDurationLimits: "
+                               "cannot tell the frame period")
+    M = int(round(dt / clk_nom_s))
     if len(starts) >= 2:  # Δt: a line through the time stamps (finer than their median step)
         si = np.array(starts)
         dt = float(np.polyfit(si[:, 0], si[:, 1], 1)[0])

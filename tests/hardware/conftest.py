@@ -22,3 +22,16 @@ def firmware(tmp_path_factory):
             pytest.fail("SCET_REQUIRE_ALL=1 but " + reason)
         pytest.skip(reason)
     return build_firmware(tmp_path_factory.mktemp("firmware"))
+
+
+#: The simulated bootloader's time (s): an Uno's Optiboot takes about 1 s; the harness takes a
+#: parameter so that the tests stay fast while the host still has to wait for the reset.
+BOOT_S = 0.3
+
+
+@pytest.fixture(autouse=True)
+def strobe_settings_file(tmp_path, monkeypatch):
+    """``scet strobe`` keeps its settings file in the test's folder, never in ~/.config."""
+    path = tmp_path / "strobe-settings.json"
+    monkeypatch.setenv("SCET_STROBE_SETTINGS", str(path))
+    return path

@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from estimator.scene import load_scene
-from scet_hardware.mirror import MirrorParams, mirror_mesh, turn_positions_local_m, write_mirror
+from scet_hardware.mirror import (MirrorParams, mirror_mesh, mirror_outline_mm, turn_angles_rad,
+                                  turn_clearance_mm, turn_positions_local_m, write_mirror)
 from scet_hardware.profiles import plan_prototype_strobe, profile
 
 
@@ -54,10 +55,51 @@ def test_mirror_is_a_closed_printable_part(tmp_path):
     assert mesh.volume > 2.0 * band
 
 
-def test_turns_are_parameters_of_the_lights_not_of_the_part():
+def test_every_turn_can_be_wound_and_sits_on_the_strip():
+    # Issue 32, fix 5: nothing on the outer face where a turn passes, and each end turn has
+    # the strip under it (wire radius 0.4 mm) plus the clearance to its lug.
+    p = MirrorParams()
+    room = turn_clearance_mm(p)
+    assert not room["blocked"].any()
+    assert room["support_mm"].min() >= p.wire_diameter_mm / 2 + p.clearance_mm
+
+
+def test_the_clearance_check_sees_a_stem_at_mid_arc():
+    # The part before the fix: a 3 mm stem from the middle of the outer face. The check must
+    # find the turns it blocks: the middle three of 35 (0-based 16-18).
+    p = MirrorParams(notch_depth_mm=0.0)
+    r_out, mid, half = 34.5, np.radians(45.0), 1.5
+    er, et = np.array([np.cos(mid), np.sin(mid)]), np.array([-np.sin(mid), np.cos(mid)])
+    stem = np.array([(33.5 * er - half * et), (42.5 * er - half * et), (42.5 * er + half * et),
+                     (33.5 * er + half * et)])
+    room = turn_clearance_mm(p, [mirror_outline_mm(p), stem])
+    assert np.flatnonzero(room["blocked"]).tolist() == [16, 17, 18]
+
+
+def test_a_notch_at_every_turn_and_a_smooth_inner_face():
+    from scet_hardware.mirror import _inside
+
+    p = MirrorParams()
+    poly = mirror_outline_mm(p)
+    a = turn_angles_rad(p)
+    r_out = p.radius_mm + p.thickness_mm
+    below = r_out - p.notch_depth_mm - 0.01
+    above = r_out - p.notch_depth_mm + 0.01
+    assert _inside(poly, np.c_[below * np.cos(a), below * np.sin(a)]).all()
+    assert not _inside(poly, np.c_[above * np.cos(a), above * np.sin(a)]).any()
+    # Between two turns the outer face is whole; the inner face is whole everywhere.
+    mid = (a[:-1] + a[1:]) / 2
+    assert _inside(poly, np.c_[(r_out - 0.01) * np.cos(mid), (r_out - 0.01) * np.sin(mid)]).all()
+    fine = np.linspace(-0.01, a[-1] + 0.01, 2000)
+    assert _inside(poly, np.c_[(p.radius_mm + 0.01) * np.cos(fine), (p.radius_mm + 0.01) * np.sin(fine)]).all()
+
+
+def test_turns_are_parameters_of_the_lights_and_the_notches():
     a, b = MirrorParams(turns=35), MirrorParams(turns=20)
-    assert mirror_mesh(a).volume == pytest.approx(mirror_mesh(b).volume)
     assert len(turn_positions_local_m(a)) == 35 and len(turn_positions_local_m(b)) == 20
+    # Each notch removes a triangle of the wire's width and the notch's depth (x the width).
+    notch = 0.5 * a.wire_diameter_mm * a.notch_depth_mm * a.width_mm
+    assert mirror_mesh(b).volume - mirror_mesh(a).volume == pytest.approx(15 * notch, rel=0.02)
 
 
 def test_turns_on_the_arc_and_in_the_scene():
@@ -77,7 +119,7 @@ def test_turns_on_the_arc_and_in_the_scene():
 
 @pytest.mark.parametrize("kw, message", [
     ({"turns": 80}, "do not fit"), ({"radius_mm": -1.0}, "radius_mm must be positive"),
-    ({"span_deg": 400.0}, "span_deg"),
+    ({"span_deg": 400.0}, "span_deg"), ({"notch_depth_mm": 0.8}, "notch_depth_mm"),
 ])
 def test_bad_mirror_parameters(kw, message):
     with pytest.raises(ValueError, match=message):

@@ -71,7 +71,9 @@ def test_the_readme_runs(firmware, datasets, tmp_path):
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
         [str(REPO)] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]))
     prelude = f'scet() {{ {shlex.quote(sys.executable)} -m scet_render.cli "$@"; }}\nset -e\n'
-    with SimulatedBoard(firmware, tmp_path / "board") as board:
+    from tests.hardware.conftest import BOOT_S
+
+    with SimulatedBoard(firmware, tmp_path / "board", boot_s=BOOT_S) as board:
         env["SCET_STROBE_PORT"] = board.port
         for kind, body in found:
             for line in body.strip().splitlines():

@@ -1,6 +1,7 @@
 """The host side of the strobe protocol against the firmware running in simavr behind a
-pseudo-terminal (real time), and against a bare pseudo-terminal for what a healthy board never
-sends (malformed replies, silence)."""
+pseudo-terminal (real time) that resets as an Uno does (on open, mid-session, on a replug),
+and against a bare pseudo-terminal for what a healthy board never sends (malformed replies,
+silence, another device, another protocol version)."""
 
 import os
 import threading
@@ -12,12 +13,71 @@ serial = pytest.importorskip("serial", reason="could not import pyserial (extra 
 from scet_hardware.firmware import SimulatedBoard, pulse_train, read_vcd
 from scet_hardware.strobe import (StrobeError, StrobeLink, StrobeReplyError, StrobeTimeout,
                                   parse_count, parse_reply, parse_settings)
+from tests.hardware.conftest import BOOT_S
 
 
 @pytest.fixture()
 def board(firmware, tmp_path):
-    with SimulatedBoard(firmware, tmp_path) as b:
+    with SimulatedBoard(firmware, tmp_path, boot_s=BOOT_S) as b:
         yield b
+
+
+def test_opening_resets_the_board_and_the_link_waits_it_out(board):
+    # The first open raises DTR: the board resets, the bootloader swallows the first PINGs.
+    import time
+
+    t = time.monotonic()
+    with StrobeLink(board.port, boot_s=3.0) as link:
+        took = time.monotonic() - t
+        assert link.resets == 1
+        assert link.get().pulses == 16
+    assert took >= BOOT_S          # the handshake waited for the bootloader
+
+
+def test_settings_survive_a_reset_on_every_open(board, tmp_path):
+    # HUPCL left set: every close drops DTR and every open resets (issue 32, item 2).
+    store = tmp_path / "settings.json"
+    with StrobeLink(board.port, keep_dtr=False, settings=store) as link:
+        link.apply(pulses=8, trim_256th=89, mode="single")
+    with StrobeLink(board.port, keep_dtr=False) as link:       # no settings file: defaults
+        assert link.resets == 1
+        assert (link.get().pulses, link.get().trim_256th) == (16, 0)
+    with StrobeLink(board.port, keep_dtr=False, settings=store) as link:
+        assert link.resets == 1
+        s = link.get()
+        assert (s.pulses, s.trim_256th, s.mode) == (8, 89, "single")
+
+
+def test_a_cleared_hupcl_keeps_the_board_from_resetting(board):
+    with StrobeLink(board.port) as link:                        # keep_dtr: HUPCL cleared
+        assert link.resets == 1
+        link.apply(pulses=9, remember=False)
+    with StrobeLink(board.port) as link:
+        assert link.resets == 0 and link.get().pulses == 9
+
+
+def test_a_reset_in_the_middle_of_a_session_is_recovered(board, tmp_path):
+    import time
+
+    calls = []
+    with StrobeLink(board.port, settings=tmp_path / "s.json", on_reset=lambda: calls.append(1)) as link:
+        link.apply(width_ticks=2000)
+        board.reset()
+        time.sleep(0.05)
+        assert link.get().width_ticks == 2000       # restored from the settings file
+        assert link.resets == 2 and calls == [1]
+        assert link.count().periods < 16 * 60       # counting anew: the board did reset
+
+
+def test_a_replugged_board_is_reconnected(board, tmp_path):
+    import time
+
+    with StrobeLink(board.port, settings=tmp_path / "s.json") as link:
+        link.apply(pulses=12)
+        board.replug()
+        time.sleep(0.1)
+        assert link.get().pulses == 12
+        assert link.reconnects == 1
 
 
 def test_settings_round_trip_through_the_simulated_board(board):
@@ -79,44 +139,81 @@ def test_err_replies_carry_code_and_detail():
     assert (err.value.code, err.value.detail) == ("RANGE", "WIDTH 64..PERIOD-128")
 
 
-def _fake_port():
-    master, slave = os.openpty()
-    return master, os.ttyname(slave), slave
+class FakeDevice:
+    """A bare pseudo-terminal answering each line it receives from a list of replies (None:
+    silence); what a healthy board never sends."""
+
+    def __init__(self, replies):
+        self.master, self.slave = os.openpty()
+        self.name = os.ttyname(self.slave)
+        self.replies = list(replies)
+        self._stop = False
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self):
+        import select
+
+        buf = b""
+        while not self._stop:
+            r, _, _ = select.select([self.master], [], [], 0.02)
+            if not r:
+                continue
+            buf += os.read(self.master, 256)
+            while b"\n" in buf:
+                _, _, buf = buf.partition(b"\n")
+                reply = self.replies.pop(0) if self.replies else None
+                if reply is not None:
+                    os.write(self.master, reply)
+
+    def close(self):
+        self._stop = True
+        self._thread.join()
+        os.close(self.master)
+        os.close(self.slave)
 
 
 def test_silence_is_a_timeout_naming_the_port():
-    master, name, slave = _fake_port()
+    dev = FakeDevice([b"OK SCET-STROBE 1\n"])
     try:
-        with StrobeLink(name, timeout_s=0.3) as link:
-            with pytest.raises(StrobeTimeout, match=f"{name}: no reply within 0.3 s"):
+        with StrobeLink(dev.name, timeout_s=0.3, boot_s=0.3) as link:
+            with pytest.raises(StrobeTimeout, match=f"{dev.name}: no reply to 'GET' within 0.3 s"):
                 link.get()
     finally:
-        os.close(master)
-        os.close(slave)
+        dev.close()
 
 
 def test_garbage_and_partial_lines():
-    master, name, slave = _fake_port()
-
-    def answer(data):
-        os.read(master, 64)
-        os.write(master, data)
-
+    dev = FakeDevice([b"OK SCET-STROBE 1\n", b"\xff\xfe\x00\n", b"OK PULSES=1"])
     try:
-        with StrobeLink(name, timeout_s=0.5) as link:
-            t = threading.Thread(target=answer, args=(b"\xff\xfe\x00\n",))
-            t.start()
+        with StrobeLink(dev.name, timeout_s=0.5, boot_s=0.3) as link:
             with pytest.raises(StrobeError, match="not ASCII"):
                 link.get()
-            t.join()
-            t = threading.Thread(target=answer, args=(b"OK PULSES=1",))
-            t.start()
-            with pytest.raises(StrobeTimeout, match="partial line 'OK PULSES=1'"):
+            with pytest.raises(StrobeError, match="OK PULSES=1"):
                 link.get()
-            t.join()
     finally:
-        os.close(master)
-        os.close(slave)
+        dev.close()
+
+
+@pytest.mark.parametrize("replies, message", [
+    ([b"HELLO FROM A GPS\n"] * 20, "no SCET strobe firmware answered within 0.6 s; it sent "
+                                    "'HELLO FROM A GPS'"),
+    ([], "no SCET strobe firmware answered within 0.6 s; it sent nothing"),
+    ([b"OK SCET-STROBE 2\n"], "the firmware speaks protocol 2, this host 1"),
+])
+def test_not_this_firmware_is_one_clear_error(replies, message, capsys):
+    from scet_render.cli import main
+
+    dev = FakeDevice(replies)
+    try:
+        with pytest.raises(StrobeError, match=message):
+            StrobeLink(dev.name, boot_s=0.6)
+        dev.replies = list(replies)
+        assert main(["strobe", "get", "--port", dev.name, "--boot-s", "0.6"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and dev.name in err[0]
+    finally:
+        dev.close()
 
 
 def test_missing_port():

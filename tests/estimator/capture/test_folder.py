@@ -112,7 +112,7 @@ def test_stride_mismatch(tmp_path):
     (lambda h: h["raw"].update(format="SGBRG12_CSI2P"), "key 'raw.format': unknown raw format 'SGBRG12_CSI2P'"),
     (lambda h: h["raw"].update(stride=700), "key 'raw.stride' is 700 bytes, shorter than one SGBRG10_CSI2P row"),
     (lambda h: h["raw"].update(size=[640]), "key 'raw.size' must be"),
-    (lambda h: h.update(version=2), "key 'version': this SCET reads scet-capture version 1"),
+    (lambda h: h.update(version=3), "key 'version': this SCET reads scet-capture version one of"),
     (lambda h: h.update(format="scet-dataset"), "key 'format' is 'scet-dataset'"),
     (lambda h: h.update(channel_gains=[1, 1, 0, 1]), "key 'channel_gains'"),
 ])
