@@ -32,7 +32,7 @@ LAYERS = {
         {"glints", "capture"},
         {"matching"},
         {"tracker", "samples", "estimates", "cut_glints", "assisted"},
-        {"inputs", "folders"},
+        {"inputs", "folders", "events"},
         {"live"},
     ],
     "scet_render": [
