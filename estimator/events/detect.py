@@ -191,7 +191,8 @@ def _crossing(tv, r, i, step, level, wide_s) -> tuple[float, float]:
     below ``level``; returns (time of the crossing, half the bracket). Within a bracket up to
     ``wide_s`` the crossing is interpolated linearly; across a wider one (a blanking gap, NaN
     bands) the speed's trend over the last two samples inside is extrapolated to the level,
-    kept within the bracket (a straight line across a gap puts the crossing at its far end).
+    no further than the bracket's middle (a straight line across a gap puts the crossing at
+    its far end).
     The start or end of the data is a crossing there, with an infinite uncertainty."""
     j = i
     while 0 <= j + step < r.size and np.isfinite(r[j + step]) and r[j + step] > level:
@@ -206,7 +207,9 @@ def _crossing(tv, r, i, step, level, wide_s) -> tuple[float, float]:
     q = j - step  # the sample before j, further inside the event
     if 0 <= q < r.size and np.isfinite(r[q]) and r[q] > r[j]:
         rate = (r[q] - r[j]) / abs(float(tv[q] - tv[j]))  # fall of r per second outwards
-        reach = min((r[j] - level) / rate, 2 * half)
+        # at most to the bracket's middle: a speed above the level just inside a gap says the
+        # event began near it (the ramps take a few ms), and a flat trend says little
+        reach = min((r[j] - level) / rate, half)
         return float(tv[j] + step * reach), half
     return float(0.5 * (tv[j] + tv[k])), half
 

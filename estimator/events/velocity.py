@@ -23,6 +23,8 @@ import numpy as np
 #: Most neighbours on each side a fit looks at (window / shortest spacing rarely exceeds it:
 #: 16 at 1 kHz and +-8 ms); the window is cut there.
 MAX_NEIGHBOURS = 64
+#: Samples per block of the vectorised fit.
+CHUNK = 8192
 
 
 def local_velocity(time_s, position_deg, half_window_s: float, *, max_gap_s: float) -> np.ndarray:
@@ -66,28 +68,26 @@ def local_velocity(time_s, position_deg, half_window_s: float, *, max_gap_s: flo
         ahead = few & ~back & (d_ahead <= max_gap_s)
         lo = np.where(back, lo - 1, lo)
         hi = np.where(ahead, hi + 1, hi)
-    k_max = int(min(MAX_NEIGHBOURS, max(np.max(np.arange(m) - lo), np.max(hi - 1 - np.arange(m)))))
-    s_n = np.zeros(m)
-    s_t = np.zeros(m)
-    s_tt = np.zeros(m)
-    s_x = np.zeros((m, 2))
-    s_tx = np.zeros((m, 2))
-    for k in range(-k_max, k_max + 1):
-        j = idx + k
-        use = (j >= lo) & (j < hi)
-        jj = np.clip(j, 0, m - 1)
-        dt = np.where(use, tv[jj] - tv, 0.0)  # relative to the sample itself: no cancellation
-        dx = np.where(use[:, None], xv[jj] - xv, 0.0)
-        w = use.astype(np.float64)
-        s_n += w
-        s_t += dt
-        s_tt += dt * dt
-        s_x += dx
-        s_tx += dt[:, None] * dx
-    den = s_n * s_tt - s_t * s_t
-    good = (s_n >= 2) & (den > 0) & (hi - lo >= 2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        v = (s_n[:, None] * s_tx - s_t[:, None] * s_x) / den[:, None]
-    v[~good] = np.nan
+    k_max = int(min(MAX_NEIGHBOURS, max(np.max(idx - lo), np.max(hi - 1 - idx))))
+    offsets = np.arange(-k_max, k_max + 1)
+    v = np.full((m, 2), np.nan)
+    for a in range(0, m, CHUNK):  # one (rows, 2 k + 1) block at a time: bounded memory
+        i = idx[a:a + CHUNK]
+        j = i[:, None] + offsets[None, :]
+        use = (j >= lo[i, None]) & (j < hi[i, None])
+        jc = np.clip(j, 0, m - 1)
+        dt = np.where(use, tv[jc] - tv[i, None], 0.0)  # relative to the sample: no cancellation
+        dx = np.where(use[..., None], xv[jc] - xv[i, None, :], 0.0)
+        s_n = use.sum(axis=1)
+        s_t = dt.sum(axis=1)
+        s_tt = (dt * dt).sum(axis=1)
+        s_x = dx.sum(axis=1)
+        s_tx = np.einsum("ij,ijk->ik", dt, dx)
+        den = s_n * s_tt - s_t * s_t
+        good = (s_n >= 2) & (den > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vb = (s_n[:, None] * s_tx - s_t[:, None] * s_x) / den[:, None]
+        vb[~good] = np.nan
+        v[a:a + CHUNK] = vb
     out[ok] = v
     return out
