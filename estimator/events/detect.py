@@ -214,6 +214,26 @@ def _crossing(tv, r, i, step, level, wide_s) -> tuple[float, float]:
     return float(0.5 * (tv[j] + tv[k])), half
 
 
+def _interval_bound(tv, ri, i, step, level) -> tuple[float, float]:
+    """Onset (``step`` -1) or offset (+1) of an event found at sample ``i`` of sparse samples:
+    from the intervals next to it, walk outwards while an interval's speed ``ri`` (between
+    consecutive samples, in noise SDs) exceeds ``level``; the event starts (ends) inside the
+    outermost such interval, whose middle is the estimate and half its length the
+    uncertainty (the interval alone cannot place it better)."""
+    n = ri.size
+    k = i - 1 if step < 0 else i  # the interval on that side of sample i
+    if not (0 <= k < n) or not np.isfinite(ri[k]):
+        return float(tv[i]), math.inf
+    if ri[k] <= level:  # nothing moved on that side: the bound is at the sample itself
+        k2 = k + (1 if step < 0 else -1)
+        if not (0 <= k2 < n):
+            return float(tv[i]), math.inf
+        k = k2
+    while 0 <= k + step < n and np.isfinite(ri[k + step]) and ri[k + step] > level:
+        k += step
+    return float(0.5 * (tv[k] + tv[k + 1])), 0.5 * float(tv[k + 1] - tv[k])
+
+
 def _mean_near(tv, xv, t0, t1, nearest_before: bool):
     """Mean gaze of the valid samples in [t0, t1]; else the nearest sample outside it."""
     sel = (tv >= t0) & (tv <= t1)
@@ -279,7 +299,19 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
     sd = noise_sd_deg_s or {k: _noise_sd(v) for k, v in vel.items()}
     rows = []
     taken = np.zeros(tv.size, dtype=bool)
-    wide = WIDE_BRACKET * float(np.median(np.diff(tv)))
+    spacing = float(np.median(np.diff(tv)))
+    wide = WIDE_BRACKET * spacing
+    # Sparse samples (60 Hz, 4 pulses a frame): no timing window holds three of them, and a
+    # fit over the neighbours on both sides smears each event by a sample period on each
+    # side; bounds then come from the speed of each interval between consecutive samples.
+    sparse = spacing > p.timing_window_s
+    if sparse:
+        dtv = np.diff(tv)
+        vi = np.diff(xv, axis=0) / dtv[:, None]
+        vi[:, 0] *= np.cos(np.radians(0.5 * (xv[1:, 1] + xv[:-1, 1])))
+        vi[dtv > p.max_gap_s] = np.nan
+        si = _noise_sd(vi)
+        ri = np.hypot(vi[:, 0] / si[0], vi[:, 1] / si[1])  # ri[i]: interval (i, i + 1)
     for scale in ("timing", "small"):
         v, s = vel[scale], np.asarray(sd[scale], dtype=np.float64)
         if not np.isfinite(s).all():
@@ -291,8 +323,12 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
         for a, b in _runs(hot):
             if taken[a:b + 1].any():
                 continue
-            on, on_u = _crossing(tv, r, a, -1, p.bound_sd, wide)
-            off, off_u = _crossing(tv, r, b, +1, p.bound_sd, wide)
+            if sparse:
+                on, on_u = _interval_bound(tv, ri, a, -1, p.bound_sd)
+                off, off_u = _interval_bound(tv, ri, b, +1, p.bound_sd)
+            else:
+                on, on_u = _crossing(tv, r, a, -1, p.bound_sd, wide)
+                off, off_u = _crossing(tv, r, b, +1, p.bound_sd, wide)
             if not (math.isfinite(on_u) and math.isfinite(off_u)):
                 continue  # the data start or end inside it: not measurable
             span = (tv >= on) & (tv <= off)

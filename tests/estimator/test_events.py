@@ -184,3 +184,16 @@ def test_deterministic_and_shift_invariant():
     b = detect_events(t + 1e4, x)  # a late clock: the fits are relative to each sample
     np.testing.assert_allclose(b.onset_s - 1e4, a.onset_s, atol=1e-9)
     assert math.isclose(a.peak_velocity_deg_s[0], b.peak_velocity_deg_s[0], rel_tol=1e-6)
+
+
+def test_sixty_hz_bounds_from_the_intervals():
+    """One sample a frame: the onset lies in the first interval that moved; its middle is the
+    estimate and half the frame the uncertainty (central differences would put it a frame
+    early)."""
+    t = FRAME_S * (np.arange(60) + 0.5)
+    on = 0.3 + 0.004
+    ev = detect_events(t, saccade(t, on, 10.0, 0.043))
+    assert ev.count == 1
+    assert ev.onset_uncertainty_s[0] == pytest.approx(0.5 * FRAME_S)
+    assert abs(ev.onset_s[0] - on) <= 0.5 * FRAME_S
+    assert abs(ev.offset_s[0] - (on + 0.043)) <= 0.5 * FRAME_S

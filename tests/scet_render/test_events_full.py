@@ -85,21 +85,34 @@ def test_intervals_known_values():
     assert lo == pytest.approx(4.7954 / 2, abs=1e-3) and hi == pytest.approx(18.3904 / 2, abs=1e-3)
 
 
-def test_band_detector_on_a_simulated_goal_stream(designed, trajectory):
-    """Designed lighting, 16 pulses, S = 524, the rendered validation's per-sample noise: every
-    saccade >= 1 deg found, onsets within 1.5 ms on average (the issue's goal is a 1 ms mean
-    over hundreds, which the study reports with its interval; a dozen get a margin) and each
-    within 4 ms (runs of invalid bands beside an onset widen its bracket to ~3 ms)."""
+def test_band_detector_on_a_simulated_goal_stream(designed):
+    """Designed lighting, 16 pulses, S = 524, the rendered validation's per-sample noise, 40
+    saccades: every one >= 1 deg found, onsets within 1.5 ms on average (the issue's goal is a
+    1 ms mean over hundreds, which the study reports with its interval) and each within its
+    stated uncertainty + 5 ms (the 3-SD boundary is crossed up to ~2 ms into the 12-ms
+    accelerations of the largest saccades, and invalid bands beside an onset add more)."""
+    traj = study_trajectory(designed, 40, 6, seed=3)
     st = band_setting("goal", designed, 16, 524, 0.018 / math.sqrt(math.pi / 2))
-    t, pos = simulate_stream(st, trajectory, trajectory.duration_s, seed=0)
+    t, pos = simulate_stream(st, traj, traj.duration_s, seed=0)
     ev = detect_events(t, pos)
-    truth = truth_events(trajectory, t[0], t[-1])
+    truth = truth_events(traj, t[0], t[-1])
     m = match_events(ev.onset_s, ev.offset_s, ev.amplitude_deg, ev.peak_velocity_deg_s, truth,
                      0.5e-3, t[0], t[-1])
     big = truth.amplitude_deg >= 1.0
-    assert big.sum() >= 8 and (m.match[big] >= 0).all()
-    err = np.abs(m.onset_s[m.match[big]] - truth.onset_s[big])
-    assert err.mean() < 1.5e-3 and err.max() < 4e-3, err
+    assert big.sum() >= 30 and (m.match[big] >= 0).all()
+    j = m.match[big]
+    err = np.abs(m.onset_s[j] - truth.onset_s[big])
+    assert err.mean() < 1.5e-3, err.mean()
+    assert (err <= ev.onset_uncertainty_s[j] + 5e-3).all(), err
     uniform = StreamSetting("1k", "uniform", designed, 0.0)
-    t1, _ = simulate_stream(uniform, trajectory, 0.5, seed=0)
+    t1, _ = simulate_stream(uniform, traj, 0.5, seed=0)
     np.testing.assert_allclose(np.diff(t1), 1e-3, atol=1e-12)
+
+
+def test_simulation_is_deterministic_for_a_seed(designed, trajectory):
+    st = band_setting("det", designed, 8, 786, 0.01)
+    a = simulate_stream(st, trajectory, 0.5, seed=5)[1]
+    b = simulate_stream(st, trajectory, 0.5, seed=5)[1]
+    c = simulate_stream(st, trajectory, 0.5, seed=6)[1]
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(np.nan_to_num(a), np.nan_to_num(c))
