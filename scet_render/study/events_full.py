@@ -169,7 +169,7 @@ def run_full_event_study(lightings: dict, *, out_dir, report_dir, seed: int = 0,
     rendered = rendered_comparison(labels[GOAL[0]], Path(out_dir), seed, render=render)
     timings["rendered"] = time.perf_counter() - t0
     path = write_full_report(Path(report_dir), rows, latency, rendered, traces, timings, labels,
-                             (n_saccades, n_micro))
+                             (n_saccades, n_micro), RENDERED_MEAN_ERROR_DEG)
     return rows, path
 
 
