@@ -167,8 +167,8 @@ def _bar_figure(rows, path: Path) -> None:
             x = np.arange(len(settings)) + i * w
             err = np.array([v[:, 0] - v[:, 1], v[:, 2] - v[:, 0]])
             ax.bar(x, v[:, 0], width=w, label=f"{lab}, {DET_NAMES[det]}")
-            ax.errorbar(x, v[:, 0], yerr=np.where(np.isfinite(err), err, 0), fmt="none", ecolor="k",
-                        lw=0.7, capsize=1.5)
+            ax.errorbar(x, v[:, 0], yerr=_bars(err), fmt="none", ecolor="k", lw=0.7,
+                        capsize=1.5)
         ax.set_ylabel(MEASURES[key], fontsize=7)
         if key in ("onset_mae_ms", "offset_mae_ms"):
             ax.set_yscale("log")
@@ -194,7 +194,8 @@ def _budget_figure(rows, path: Path) -> None:
     for ax, key in zip(axes, ("onset_mae_ms", "offset_mae_ms")):
         v = np.array([_find(rows, "designed", n, "scet")["summary"][key] for n in names], float)
         ax.bar(np.arange(len(names)), v[:, 0], color="C0")
-        ax.errorbar(np.arange(len(names)), v[:, 0], yerr=[v[:, 0] - v[:, 1], v[:, 2] - v[:, 0]],
+        ax.errorbar(np.arange(len(names)), v[:, 0],
+                    yerr=_bars(np.array([v[:, 0] - v[:, 1], v[:, 2] - v[:, 0]])),
                     fmt="none", ecolor="k", capsize=3)
         ax.axhline(1.0, color="r", lw=0.7, ls="--")
         ax.set_xticks(np.arange(len(names)), [n.replace("16 pulses, S = 524", "goal") for n in names],
@@ -266,13 +267,18 @@ def _rendered_figure(rendered, path: Path) -> None:
             x = np.arange(len(DET_NAMES)) + 0.4 * j
             ax.bar(x, v[:, 0], width=0.4, label=src)
             err = np.array([v[:, 0] - v[:, 1], v[:, 2] - v[:, 0]])
-            ax.errorbar(x, v[:, 0], yerr=np.where(np.isfinite(err), err, 0), fmt="none",
-                        ecolor="k", capsize=3)
+            ax.errorbar(x, v[:, 0], yerr=_bars(err), fmt="none", ecolor="k", capsize=3)
         ax.set_xticks(np.arange(len(DET_NAMES)) + 0.2, list(DET_NAMES.values()), fontsize=8)
         ax.set_title(MEASURES[key] + ", 95 %", fontsize=8)
     axes[0].legend(fontsize=8)
     fig.tight_layout()
     _save(fig, path)
+
+
+def _bars(err) -> np.ndarray:
+    """(2, k) interval bars: NaN (no interval) as none, and never negative (a bootstrap
+    interval of identical values can miss its mean by a rounding)."""
+    return np.clip(np.where(np.isfinite(err), err, 0.0), 0.0, None)
 
 
 def _save(fig, path: Path) -> None:
