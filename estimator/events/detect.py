@@ -331,6 +331,10 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
                 off, off_u = _crossing(tv, r, b, +1, p.bound_sd, wide)
             if not (math.isfinite(on_u) and math.isfinite(off_u)):
                 continue  # the data start or end inside it: not measurable
+            if any(on < f1 and off > f0 for f0, f1, *_ in rows):
+                # it reaches into an event found already (a microsaccade-scale run walking
+                # through a stretch of invalid bands into a saccade): that event stands
+                continue
             span = (tv >= on) & (tv <= off)
             taken |= span | ((np.arange(tv.size) >= a) & (np.arange(tv.size) <= b))
             pre = _mean_near(tv, xv, on - p.amplitude_window_s, on, True)

@@ -104,6 +104,7 @@ def test_band_detector_on_a_simulated_goal_stream(designed):
     err = np.abs(m.onset_s[j] - truth.onset_s[big])
     assert err.mean() < 1.5e-3, err.mean()
     assert (err <= ev.onset_uncertainty_s[j] + 5e-3).all(), err
+    assert (ev.onset_s[1:] >= ev.offset_s[:-1]).all()  # events never overlap
     uniform = StreamSetting("1k", "uniform", designed, 0.0)
     t1, _ = simulate_stream(uniform, traj, 0.5, seed=0)
     np.testing.assert_allclose(np.diff(t1), 1e-3, atol=1e-12)
