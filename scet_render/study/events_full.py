@@ -165,12 +165,27 @@ def run_full_event_study(lightings: dict, *, out_dir, report_dir, seed: int = 0,
             done += 1
             if progress:
                 progress("simulated settings", done, total)
+    blanking = blanking_table(load_scene(labels[GOAL[0]]))
     t0 = time.perf_counter()
     rendered = rendered_comparison(labels[GOAL[0]], Path(out_dir), seed, render=render)
     timings["rendered"] = time.perf_counter() - t0
     path = write_full_report(Path(report_dir), rows, latency, rendered, traces, timings, labels,
-                             (n_saccades, n_micro), RENDERED_MEAN_ERROR_DEG)
+                             (n_saccades, n_micro), RENDERED_MEAN_ERROR_DEG, blanking)
     return rows, path
+
+
+def blanking_table(setup) -> list:
+    """Per pulse count and S: band instants a frame and the longest time without one (s),
+    from the band layout over 20 frames."""
+    from .events_sim import band_instants
+
+    out = []
+    for p in PULSES:
+        for S in TOTAL_LINES:
+            st = band_setting("b", setup, p, S, 0.0).setup
+            t, _, _ = band_instants(st, 20 * st.sensor.frame_period_s)
+            out.append((p, S, t.size / 20.0, float(np.diff(t).max())))
+    return out
 
 
 def cli_conditions(rows) -> list:
