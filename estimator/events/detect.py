@@ -167,7 +167,8 @@ def check_samples(time_s, position_deg, source: str = "samples"):
         i = int(back[0]) + 1
         what = "repeats" if step[back[0]] == 0 else "is before"
         raise ValueError(f"{source}: sample {i} time {float(t[i])!r} s {what} sample {i - 1}'s "
-                         f"({float(t[i - 1])!r} s): samples must be in strictly increasing time order")
+                         f"({float(t[i - 1])!r} s): samples must be in strictly increasing "
+                         "time order")
     return t, x
 
 

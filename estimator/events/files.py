@@ -68,8 +68,8 @@ def gaze_from_samples_csv(path, setup) -> tuple[np.ndarray, np.ndarray]:
         if i and t[i] <= t[i - 1]:
             what = "repeats" if t[i] == t[i - 1] else "is before"
             raise TrackerInputError(f"line {line}: time_s {float(t[i])!r} {what} the previous "
-                                    f"sample's ({float(t[i - 1])!r}): samples must be in strictly increasing "
-                                    "time order", path=path, key="time_s")
+                                    f"sample's ({float(t[i - 1])!r}): samples must be in strictly "
+                                    "increasing time order", path=path, key="time_s")
     ok = np.isfinite(xy).all(axis=1)
     if not ok.any():
         raise TrackerInputError(f"all {len(rows)} samples are NaN (lines 3-{len(rows) + 2}): no "
