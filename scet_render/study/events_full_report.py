@@ -318,6 +318,8 @@ def write_full_report(report_dir: Path, rows, latency, rendered, traces, timings
     if rendered is not None:
         _rendered_figure(rendered, figs / "events_rendered.png")
     p = EventParams()
+    noise_text = "; ".join(f"`{k}` " + " / ".join(f"{v:.3f}" for v in row.values())
+                           for k, row in noise_table.items())
     scenes = ", ".join(f"{k}: `{v}`" for k, v in labels.items())
     lat = ("not measured" if latency is None else
            f"median {latency['median_ms']:.1f} ms after the true onset (95th percentile "
@@ -351,7 +353,7 @@ the pose at its instant put at least {MIN_GLINTS} visible glints inside its rows
 tracker's own identification) or at least one with a valid band {1e3 * PRIOR_REACH_S:g} ms
 before (prior assistance); a valid sample is the true Fick angles plus Gaussian noise per axis
 of the geometric gaze's error in the full-size rendered validation of the same lighting and
-pulse count (mean error {noise_table} deg over sqrt(pi/2); at S = 786; the 60 Hz
+pulse count (mean errors {noise_text} deg at 4 / 8 / 16 pulses, over sqrt(pi/2); at S = 786; the 60 Hz
 tracker: one sample a frame, lit by one pulse that every row collects, with the 4-pulse noise;
 the 1 kHz reference: a valid sample every millisecond with the goal setting's noise).
 
