@@ -240,6 +240,12 @@ def cmd_track(args) -> int:
                                    progress=update, flag_cut_glints=args.flag_cut_glints)
     finally:
         bar.close()
+    if args.events is not None:  # issue 34: saccades and microsaccades beside the samples
+        from estimator.events import events_from_samples_csv
+
+        events = events_from_samples_csv(summary.path, setup, args.events)
+        print(f"{events.count} events ({int((events.kind == 'saccade').sum())} saccades) "
+              f"written to {args.events}")
     print(f"{len(summary.samples)} gaze samples from {summary.frames} frames "
           f"({summary.n_ok} estimated) written to {summary.path}")
     print(f"throughput: {summary.samples_per_s:.0f} samples/s, "
@@ -406,6 +412,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", type=Path, required=True, help="calibration file from scet calibrate")
     p.add_argument("--method", choices=("polynomial", "geometric"), default="polynomial")
     p.add_argument("--out", type=Path, required=True, help="samples CSV")
+    p.add_argument("--events", type=Path, default=None,
+                   help="also write the saccades and microsaccades found in the samples to this "
+                        "CSV (format scet-events 1: onset_s, offset_s, amplitude_deg, "
+                        "peak_velocity_deg_s, kind, onset/offset_uncertainty_s; "
+                        "estimator.events)")
     p.add_argument("--follow", action="store_true",
                    help="track the frames as they are written (live): stop on an 'end' file, a "
                         "dataset's last frame or --timeout seconds without a new frame")

@@ -36,7 +36,7 @@ LAYERS = {
         {"glints", "capture"},
         {"matching"},
         {"tracking", "tracker"},
-        {"inputs", "folders"},
+        {"inputs", "folders", "events"},
         {"live"},
     ],
     "scet_render": [

@@ -11,8 +11,10 @@ the 60 Hz, one-sample-per-frame tracker of the same camera. Every sequence is ca
 (:mod:`scet_render.study.events`), which are scored against the trajectory's own saccades.
 
 Quick mode renders like ``scet validate --quick`` (320 x 240, 4 spp, conductor cornea) and
-120 frames (2 s, about 8 saccades) per sequence; full mode 640 x 480, 16 spp, dielectric,
-600 frames (10 s).
+120 frames (2 s, about 8 saccades) per sequence. Full mode (no ``--quick``) is the study of
+issue 34 (:mod:`.events_full`): the feature-level simulation of hundreds of saccades at every
+setting and one rendered full-size sub-sequence; :data:`FULL` keeps the render-everything
+configuration for callers that pass it as ``config``.
 """
 
 from __future__ import annotations
@@ -65,6 +67,12 @@ def run_event_study(lightings: dict, *, quick: bool, out_dir, report_dir, seed: 
     from estimator.banding import calibration_setup, scaled_setup, strobe_setup
     from scet_render.dataset import dataset_trajectory, render_calibration, render_dataset
 
+    if not quick and config is None:  # issue 34: the full study is the simulation at scale
+        from .events_full import cli_conditions, run_full_event_study
+
+        rows, path = run_full_event_study(lightings, out_dir=out_dir, report_dir=report_dir,
+                                          seed=seed, progress=progress)
+        return cli_conditions(rows), path
     cfg = config or (QUICK if quick else FULL)
     if not lightings:
         raise ValueError("lightings: at least one scene is needed")

@@ -1,0 +1,131 @@
+"""Events beside the samples: reading a samples CSV into gaze angles, and the events CSV.
+
+The events CSV (format ``scet-events``, version :data:`EVENTS_VERSION`): a first line
+``# scet-events 1``, a header, one row per event in onset order::
+
+    onset_s,offset_s,amplitude_deg,peak_velocity_deg_s,kind,onset_uncertainty_s,offset_uncertainty_s
+
+times on the samples' clock (the strobe instants, s), the amplitude and peak velocity of the
+gaze's Fick angles, ``kind`` ``saccade`` or ``microsaccade`` (below 1 deg), and each
+uncertainty half the time between the two samples that bracket the crossing
+(:mod:`estimator.events.detect`).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import TrackerInputError
+from ..formats import atomic_write
+from .detect import EventParams, Events, detect_events, gaze_angles_deg
+
+EVENTS_FORMAT = "scet-events"
+EVENTS_VERSION = 1
+EVENT_COLUMNS = ("onset_s", "offset_s", "amplitude_deg", "peak_velocity_deg_s", "kind",
+                 "onset_uncertainty_s", "offset_uncertainty_s")
+
+
+def gaze_from_samples_csv(path, setup) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) sample times (s) and (n, 2) gaze Fick angles (deg, NaN for failed samples) of a
+    samples CSV (:func:`estimator.samples.read_samples_csv`), the gaze from the setup's eye
+    rotation centre to the screen point.
+
+    Raises
+    ------
+    TrackerInputError
+        Naming the file and row: no ``time_s`` column, a time that is not a finite number,
+        times out of order or repeated, or no valid sample at all.
+    """
+    from ..samples import read_samples_csv
+
+    path = Path(path)
+    rows = read_samples_csv(path)
+    if not rows:
+        raise TrackerInputError("no samples: events need at least one", path=path)
+    for col in ("time_s", "screen_x_m", "screen_y_m"):
+        if col not in rows[0]:
+            raise TrackerInputError(f"no column '{col}': events need time-stamped gaze samples",
+                                    path=path, key=col)
+    t = np.empty(len(rows))
+    xy = np.empty((len(rows), 2))
+    for i, r in enumerate(rows):
+        line = i + 3  # the format line and the header come first
+        try:
+            t[i] = float(r["time_s"])
+            xy[i] = float(r["screen_x_m"]), float(r["screen_y_m"])
+        except (TypeError, ValueError):
+            raise TrackerInputError(f"line {line}: time_s / screen_x_m / screen_y_m must be "
+                                    f"numbers, got {r.get('time_s')!r}, {r.get('screen_x_m')!r},"
+                                    f" {r.get('screen_y_m')!r}", path=path) from None
+        if not math.isfinite(t[i]):
+            raise TrackerInputError(f"line {line}: time_s must be finite, got {r['time_s']!r}",
+                                    path=path, key="time_s")
+        if i and t[i] <= t[i - 1]:
+            what = "repeats" if t[i] == t[i - 1] else "is before"
+            raise TrackerInputError(f"line {line}: time_s {float(t[i])!r} {what} the previous "
+                                    f"sample's ({float(t[i - 1])!r}): samples must be in strictly "
+                                    "increasing time order", path=path, key="time_s")
+    ok = np.isfinite(xy).all(axis=1)
+    if not ok.any():
+        raise TrackerInputError(f"all {len(rows)} samples are NaN (lines 3-{len(rows) + 2}): no "
+                                "gaze to find events in", path=path)
+    pos = np.full((len(rows), 2), np.nan)
+    pos[ok] = gaze_angles_deg(xy[ok], setup.eye.rotation_center_m, setup.screen.z_m)
+    return t, pos
+
+
+def events_csv(events: Events) -> str:
+    """CSV text of ``events`` (module docstring)."""
+    buf = io.StringIO()
+    buf.write(f"# {EVENTS_FORMAT} {EVENTS_VERSION}\n")
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(EVENT_COLUMNS)
+    for i in range(events.count):
+        w.writerow([repr(float(events.onset_s[i])), repr(float(events.offset_s[i])),
+                    f"{events.amplitude_deg[i]:.6g}", f"{events.peak_velocity_deg_s[i]:.6g}",
+                    str(events.kind[i]), f"{events.onset_uncertainty_s[i]:.6g}",
+                    f"{events.offset_uncertainty_s[i]:.6g}"])
+    return buf.getvalue()
+
+
+def read_events_csv(path) -> Events:
+    """Read an events CSV written by :func:`write_events_csv`, checking its format line."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise TrackerInputError(f"cannot read the events ({exc})", path=path) from None
+    first, _, rest = text.partition("\n")
+    if first.strip() != f"# {EVENTS_FORMAT} {EVENTS_VERSION}":
+        raise TrackerInputError(f"expected first line '# {EVENTS_FORMAT} {EVENTS_VERSION}', got "
+                                f"{first[:60]!r}", path=path)
+    rows = list(csv.DictReader(io.StringIO(rest)))
+    cols = {c: [] for c in EVENT_COLUMNS}
+    for i, r in enumerate(rows):
+        for c in EVENT_COLUMNS:
+            if r.get(c) is None:
+                raise TrackerInputError(f"line {i + 3}: no value for '{c}'", path=path, key=c)
+            cols[c].append(r[c])
+    f = {c: np.array(cols[c], dtype=np.float64) for c in EVENT_COLUMNS if c != "kind"}
+    return Events(f["onset_s"], f["offset_s"], f["onset_uncertainty_s"],
+                  f["offset_uncertainty_s"], f["amplitude_deg"], f["peak_velocity_deg_s"],
+                  np.array(cols["kind"], dtype="<U12"))
+
+
+def write_events_csv(path, events: Events) -> Path:
+    """Write :func:`events_csv` of ``events`` to ``path`` atomically; returns the path."""
+    return atomic_write(Path(path), events_csv(events))
+
+
+def events_from_samples_csv(samples_path, setup, events_path,
+                            params: EventParams = EventParams()) -> Events:
+    """``scet track --events``: detect the events of a samples CSV and write them beside it."""
+    t, pos = gaze_from_samples_csv(samples_path, setup)
+    events = detect_events(t, pos, params, source=str(samples_path))
+    write_events_csv(events_path, events)
+    return events

@@ -1,0 +1,83 @@
+"""The streaming form of :func:`estimator.events.detect_events`: events while samples arrive.
+
+Samples are pushed as they come (a frame's bands at a time, say). Each push runs the detector
+over the last ``history_s`` of samples and reports each event once, as soon as its offset is
+:attr:`EventParams.settle_s` old (every velocity window and the amplitude window after it are
+then full). So an event is reported ``duration + settle_s`` (plus the wait for the next push)
+after its onset: 8 + 8 = 16 ms after the offset with the defaults, about 60 ms after the onset
+of a 10-deg saccade (43 ms long). The velocity noise is estimated over the last
+:data:`HISTORY_S`, refreshed every :data:`NOISE_EVERY` pushes; each push searches only the
+last :data:`MAX_EVENT_S` plus twice the settle time, so its cost does not grow with the
+history (``benchmarks/bench_events.py``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .detect import (EventParams, Events, _noise_sd, check_samples, detect_events, empty_events,
+                     scale_velocities)
+
+#: Samples kept for the noise estimate (s): the median-based SD needs no more than a second
+#: of fixations.
+HISTORY_S = 1.0
+#: Longest event the stream reports (s): a 40-deg saccade lasts ~110 ms (Carpenter 1988);
+#: each push searches only the last MAX_EVENT_S + settle time of samples.
+MAX_EVENT_S = 0.2
+#: The noise estimate is refreshed every this many pushes (a frame each: ~0.17 s).
+NOISE_EVERY = 10
+
+
+class EventStream:
+    """Events of a live gaze stream (module docstring).
+
+    Parameters
+    ----------
+    params : EventParams
+    history_s : float
+        Samples kept for the noise estimate (s).
+    """
+
+    def __init__(self, params: EventParams = EventParams(), history_s: float = HISTORY_S):
+        if not history_s > MAX_EVENT_S + 2 * params.settle_s:
+            raise ValueError(f"history_s must exceed {MAX_EVENT_S + 2 * params.settle_s} s")
+        self.params = params
+        self.history_s = float(history_s)
+        self._t = np.zeros(0)
+        self._x = np.zeros((0, 2))
+        self._last_offset = -np.inf
+        self._sd = None
+        self._pushes = 0
+        self.reported_at_s: list[float] = []  # the latest sample time when each event was reported
+
+    def push(self, time_s, position_deg) -> Events:
+        """Add samples (after every earlier one); returns the events completed by them."""
+        t, x = check_samples(time_s, position_deg, "pushed samples")
+        if t.size == 0:
+            return empty_events()
+        if self._t.size and t[0] <= self._t[-1]:
+            raise ValueError(f"pushed samples: time {float(t[0])!r} s is not after the last "
+                             f"pushed sample's ({float(self._t[-1])!r} s)")
+        self._t = np.r_[self._t, t]
+        self._x = np.r_[self._x, x]
+        keep = self._t >= self._t[-1] - self.history_s
+        self._t, self._x = self._t[keep], self._x[keep]
+        now = float(self._t[-1])
+        p = self.params
+        young = now - float(self._t[0]) < 0.5 * self.history_s  # the estimate still settling
+        if self._sd is None or young or self._pushes % NOISE_EVERY == 0:
+            ok = np.isfinite(self._x).all(axis=1)
+            self._sd = {k: _noise_sd(v)
+                        for k, v in scale_velocities(self._t[ok], self._x[ok], p).items()}
+        self._pushes += 1
+        start = now - MAX_EVENT_S - 2 * p.settle_s
+        recent = self._t >= start
+        found = detect_events(self._t[recent], self._x[recent], p, noise_sd_deg_s=self._sd)
+        first = float(self._t[recent][0])
+        done = ((found.offset_s + p.settle_s <= now) & (found.onset_s > self._last_offset)
+                & (found.onset_s >= first + p.settle_s))
+        out = found.select(done)
+        if out.count:
+            self._last_offset = float(out.offset_s.max())
+            self.reported_at_s.extend([now] * out.count)
+        return out

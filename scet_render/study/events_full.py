@@ -1,0 +1,242 @@
+"""``scet study events`` (full mode): event timing at the band rate on hundreds of saccades.
+
+Feature-level simulation (:mod:`.events_sim`) of 200 saccades of 0.5-20 deg and 100
+microsaccades of 0.1-1 deg per lighting, at 4 / 8 / 16 pulses per frame and S = 524 and 786,
+against the 60 Hz tracker of the same camera and an ideal 1 kHz uniform tracker with the goal
+setting's per-sample noise. Three detectors on the same samples: the estimator's band-sample
+detector (:mod:`estimator.events`) and pymovements' I-VT and I-DT (:mod:`.events`). The error
+budget of the goal setting (designed lighting, 16 pulses, S = 524) switches the blanking gap,
+the per-sample noise and the invalid bands off one at a time. The rendered sub-sequence
+(:mod:`.events_render`), tracked with the prototype's tracker, is scored beside the simulation
+of the same trajectory and setting.
+
+Per-sample noise (deg per axis): the geometric gaze's mean error over the full-size rendered
+validation (``reports/full/validation.md``, ``reports/design/paper_sim_designed_validation_full``;
+640 x 480, 16 spp, dielectric, S = 786), divided by sqrt(pi / 2) (the mean of a 2-D Gaussian
+error's length is sigma sqrt(pi / 2)).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from estimator.events import EventParams, EventStream, detect_events
+from estimator.scene import load_scene
+
+from .events_score import match_events, summarise, truth_events
+from .events_sim import StreamSetting, band_setting, simulate_stream, study_trajectory
+
+N_SACCADES, N_MICRO = 200, 100
+PULSES = (4, 8, 16)
+TOTAL_LINES = (524, 786)
+#: Geometric gaze mean error (deg) of the full-size rendered validation by scene and pulses.
+RENDERED_MEAN_ERROR_DEG = {
+    "paper_sim": {4: 0.007, 8: 0.010, 16: 0.012},
+    "paper_sim_designed": {4: 0.012, 8: 0.015, 16: 0.018},
+}
+GOAL = ("designed", 16, 524)
+DETECTORS = ("scet", "ivt", "idt")
+
+
+def noise_sd_deg(scene_name: str, pulses: int) -> float:
+    table = RENDERED_MEAN_ERROR_DEG.get(scene_name, RENDERED_MEAN_ERROR_DEG["paper_sim_designed"])
+    return table[pulses] / math.sqrt(math.pi / 2)
+
+
+def _period(setting: StreamSetting) -> float:
+    s = setting.setup
+    if setting.kind == "uniform":
+        return 1.0 / setting.rate_hz
+    if setting.kind == "frame":
+        return s.sensor.frame_period_s
+    return s.strobe.period_s
+
+
+def detect(detector: str, t, pos, period_s: float):
+    """(onset, offset, amplitude, peak) arrays of one detector on the samples."""
+    if detector == "scet":
+        ev = detect_events(t, pos)
+        return ev.onset_s, ev.offset_s, ev.amplitude_deg, ev.peak_velocity_deg_s
+    from .events import detect_saccades, uniform_series
+
+    sac = detect_saccades(uniform_series(t, pos, period_s, origin_s=float(t[0])), detector)
+    return sac.onset_s, sac.offset_s, sac.amplitude_deg, sac.peak_velocity_deg_s
+
+
+def score(setting, traj, t, pos, detector):
+    truth = truth_events(traj, float(t[0]), float(t[-1]))
+    on, off, amp, peak = detect(detector, t, pos, _period(setting))
+    pad = 0.5 * float(np.median(np.diff(t)))
+    m = match_events(on, off, amp, peak, truth, pad, float(t[0]), float(t[-1]))
+    return m, summarise(m)
+
+
+def stream_latency(t, pos, traj, frame_s: float) -> dict:
+    """Latency of :class:`EventStream` (reported minus true onset, ms) over the matched
+    saccades >= 1 deg, samples pushed a frame at a time."""
+    stream = EventStream()
+    on, off, rep = [], [], []
+    edges = np.arange(t[0], t[-1] + frame_s, frame_s)
+    idx = np.searchsorted(t, edges)
+    for a, b in zip(idx[:-1], idx[1:]):
+        if b > a:
+            ev = stream.push(t[a:b], pos[a:b])
+            on.extend(ev.onset_s)
+            off.extend(ev.offset_s)
+    rep = np.array(stream.reported_at_s)
+    truth = truth_events(traj, float(t[0]), float(t[-1]))
+    m = match_events(np.array(on), np.array(off), np.zeros(len(on)), np.zeros(len(on)), truth,
+                     0.5e-3, float(t[0]), float(t[-1]))
+    hit = (m.match >= 0) & (truth.amplitude_deg >= 1.0)
+    lat = 1e3 * (rep[m.match[hit]] - truth.onset_s[hit])
+    after_off = 1e3 * (rep[m.match[hit]] - truth.offset_s[hit])
+    return {"n": int(hit.sum()), "median_ms": float(np.median(lat)),
+            "p95_ms": float(np.percentile(lat, 95)), "after_offset_median_ms": float(np.median(after_off)),
+            "settle_ms": 1e3 * EventParams().settle_s}
+
+
+def run_full_event_study(lightings: dict, *, out_dir, report_dir, seed: int = 0, progress=None,
+                         render: bool = True, n_saccades: int = N_SACCADES,
+                         n_micro: int = N_MICRO):
+    """Simulate, detect and score every setting; score the rendered sub-sequence (rendering
+    what is missing when ``render``); write ``events.md``. Returns (rows, report path)."""
+    from .events_full_report import write_full_report
+
+    timings = {"simulate": 0.0, "detect": 0.0, "stream": 0.0, "rendered": 0.0}
+    rows = []  # dicts: lighting, setting, detector, samples/s, valid share, summary
+    traces = {}
+    labels = dict(lightings)
+    if "designed" not in labels:
+        labels["designed"] = "scenes/paper_sim_designed.toml"
+    steps = [(lab, p, S) for lab in labels for p in PULSES for S in TOTAL_LINES]
+    done = 0
+    total = len(steps) + 2 * len(labels) + 6
+    latency = None
+    for lab, scene in labels.items():
+        setup = load_scene(scene)
+        traj = study_trajectory(setup, n_saccades, n_micro, seed)
+        dur = traj.duration_s
+        settings = [(f"{p} pulses, S = {S}", band_setting(f"{lab} {p} {S}", setup, p, S,
+                                                           noise_sd_deg(setup.name, p)))
+                    for p in PULSES for S in TOTAL_LINES]
+        settings.append(("60 Hz", StreamSetting(f"{lab} 60", "frame", setup,
+                                                noise_sd_deg(setup.name, 4))))
+        if lab == GOAL[0]:
+            goal_sd = noise_sd_deg(setup.name, 16)
+            settings.append(("1 kHz reference", StreamSetting("1k", "uniform", setup, goal_sd)))
+            base = dict(noise_sd_deg=goal_sd)
+            for name, sw in (("no blanking", dict(blanking=False)),
+                             ("no noise", dict(noise_sd_deg=0.0)),
+                             ("no invalid bands", dict(invalid_bands=False)),
+                             ("none of the three", dict(blanking=False, noise_sd_deg=0.0,
+                                                        invalid_bands=False))):
+                kw = {**base, **sw}
+                sd = kw.pop("noise_sd_deg")
+                settings.append((f"16 pulses, S = 524, {name}",
+                                 band_setting(f"{lab} goal {name}", setup, 16, 524, sd, **kw)))
+        for name, st in settings:
+            t0 = time.perf_counter()
+            t, pos = simulate_stream(st, traj, dur, seed)
+            timings["simulate"] += time.perf_counter() - t0
+            ok = np.isfinite(pos).all(axis=1)
+            span = float(t[-1] - t[0])
+            for det in DETECTORS:
+                t0 = time.perf_counter()
+                m, summ = score(st, traj, t, pos, det)
+                timings["detect"] += time.perf_counter() - t0
+                rows.append({"lighting": lab, "setting": name, "detector": det,
+                             "samples_per_s": ok.sum() / span, "valid": float(ok.mean()),
+                             "noise_sd_deg": st.noise_sd_deg, "n_saccades": int((m.truth.amplitude_deg >= 1).sum()),
+                             "n_micro": int(((m.truth.amplitude_deg >= 0.3) & (m.truth.amplitude_deg < 1)).sum()),
+                             "summary": summ, "matched": m})
+            if lab == GOAL[0] and name == "16 pulses, S = 524":
+                t0 = time.perf_counter()
+                latency = stream_latency(t, pos, traj, setup.sensor.frame_period_s)
+                timings["stream"] += time.perf_counter() - t0
+                traces["goal"] = (t, pos, traj)
+            if lab == GOAL[0] and name == "60 Hz":
+                traces["60"] = (t, pos, traj)
+            if lab == GOAL[0] and name == "16 pulses, S = 786":
+                traces["786"] = (t, pos, traj)
+            done += 1
+            if progress:
+                progress("simulated settings", done, total)
+    blanking = blanking_table(load_scene(labels[GOAL[0]]))
+    t0 = time.perf_counter()
+    rendered = rendered_comparison(labels[GOAL[0]], Path(out_dir), seed, render=render)
+    timings["rendered"] = time.perf_counter() - t0
+    path = write_full_report(Path(report_dir), rows, latency, rendered, traces, timings, labels,
+                             (n_saccades, n_micro), RENDERED_MEAN_ERROR_DEG, blanking)
+    return rows, path
+
+
+def blanking_table(setup) -> list:
+    """Per pulse count and S: band instants a frame and the longest time without one (s),
+    from the band layout over 20 frames."""
+    from .events_sim import band_instants
+
+    out = []
+    for p in PULSES:
+        for S in TOTAL_LINES:
+            st = band_setting("b", setup, p, S, 0.0).setup
+            t, _, _ = band_instants(st, 20 * st.sensor.frame_period_s)
+            out.append((p, S, t.size / 20.0, float(np.diff(t).max())))
+    return out
+
+
+def cli_conditions(rows) -> list:
+    """The 16-pulse, S = 524 and 60 Hz rows as the quick study's :class:`Condition` objects
+    (what ``scet study events`` prints), every detector."""
+    from .events import EventScores
+    from .events_report import RATE_60, Condition
+
+    out = []
+    for r in rows:
+        if r["setting"] not in ("16 pulses, S = 524", "60 Hz"):
+            continue
+        m = r["matched"]
+        hit = m.match >= 0
+        j = m.match[hit]
+        tr = m.truth
+        scores = EventScores(int(tr.onset_s.size), m.n_detected, int(hit.sum()),
+                             1e3 * (m.onset_s[j] - tr.onset_s[hit]),
+                             1e3 * (m.offset_s[j] - tr.offset_s[hit]),
+                             1e3 * ((m.offset_s[j] - m.onset_s[j]) - (tr.offset_s[hit] - tr.onset_s[hit])),
+                             m.peak_velocity_deg_s[j] - tr.peak_velocity_deg_s[hit],
+                             m.amplitude_deg[j] - tr.amplitude_deg[hit])
+        out.append(Condition(r["lighting"], RATE_60 if r["setting"] == "60 Hz" else 16,
+                             r["detector"], r["samples_per_s"], r["valid"], scores))
+    return out
+
+
+def rendered_comparison(scene, out_dir: Path, seed: int, *, render: bool):
+    """Score the tracked rendered sub-sequence (the frames rendered so far, from frame 0) and
+    the simulation of the same trajectory and setting; None when nothing is rendered."""
+    from .events_render import rendered_samples
+
+    got = rendered_samples(scene, out_dir / "designed", seed=seed, render=render)
+    if got is None:
+        return None
+    setup, traj, t, pos, truth_pos, frames, planned = got
+    ok = np.isfinite(pos).all(axis=1)
+    # per-sample noise of the renders: the tracked gaze minus the truth at the strobe instant,
+    # less its median (a calibration bias moves no event), over the valid samples
+    d = pos[ok] - truth_pos[ok]
+    d -= np.median(d, axis=0)
+    sd_rendered = float(np.sqrt(np.mean(d ** 2)))  # RMS per axis
+    sim_setting = band_setting("rendered twin", setup, 16, 524, sd_rendered)
+    ts, ps = simulate_stream(sim_setting, traj, float(t[-1]) + 1e-3, seed)
+    keep = ts >= t[0]
+    ts, ps = ts[keep], ps[keep]
+    out = {"frames": frames, "planned": planned, "noise_sd_deg": sd_rendered,
+           "valid_rendered": float(ok.mean()), "valid_simulated": float(np.isfinite(ps).all(axis=1).mean())}
+    for det in DETECTORS:
+        mr, sr = score(sim_setting, traj, t, pos, det)
+        ms, ss = score(sim_setting, traj, ts, ps, det)
+        out[det] = {"rendered": sr, "simulated": ss, "n": int((mr.truth.amplitude_deg >= 1).sum()),
+                    "n_all": int(mr.truth.onset_s.size)}
+    return out

@@ -1,0 +1,199 @@
+"""Events from band samples (estimator.events): velocities over irregular instants, onsets by
+interpolated crossings, the uncertainty a gap gives, main-sequence checks, the stream, the
+events CSV and its bad input. Synthetic saccades with a raised-cosine speed profile."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from estimator.errors import TrackerInputError
+from estimator.events import (EventParams, EventStream, detect_events, events_csv,
+                              gaze_from_samples_csv, local_velocity, read_events_csv,
+                              write_events_csv)
+from estimator.scene import load_scene
+from tests.tolerances import TOL  # noqa: F401  (the project's tolerances live there)
+
+FRAME_S = 0.016636
+PERIOD_S = FRAME_S / 16
+#: Onset / offset tolerance of a noise-free synthetic saccade (s): the issue's goal (1 ms).
+TIMING_TOL_S = 1e-3
+
+
+def band_times(duration_s, visible=10, rng=None):
+    """Strobe instants of ``visible`` bands out of 16 per frame (S = 786: 6.5 ms blanking)."""
+    k = np.arange(int(duration_s / PERIOD_S))
+    t = PERIOD_S * (k + 0.5)
+    return t[(k % 16) < visible]
+
+
+def saccade(t, onset, amplitude_deg, duration_s, direction=(1.0, 0.0), ramp_s=0.004):
+    """(n, 2) Fick angles (0 pitch) of a saccade whose speed rises and falls as a raised
+    cosine over ``ramp_s`` with a constant peak between (the shape of the motion model's
+    main-sequence saccades: a 10-deg one ramps over ~4 ms)."""
+    ramp = min(ramp_s, 0.5 * duration_s)
+    tau = np.linspace(0.0, duration_s, 20001)
+    v = np.ones_like(tau)
+    up, down = tau < ramp, tau > duration_s - ramp
+    v[up] = 0.5 * (1 - np.cos(np.pi * tau[up] / ramp))
+    v[down] = 0.5 * (1 - np.cos(np.pi * (duration_s - tau[down]) / ramp))
+    s = np.r_[0.0, np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(tau))]
+    s *= amplitude_deg / s[-1]
+    pos = np.interp(t - onset, tau, s, left=0.0, right=amplitude_deg)
+    d = np.asarray(direction) / np.hypot(*direction)
+    return pos[:, None] * d[None, :]
+
+
+def peak_deg_s(amplitude_deg, duration_s, ramp_s=0.004):
+    ramp = min(ramp_s, 0.5 * duration_s)
+    return amplitude_deg / (duration_s - ramp)
+
+
+def test_local_velocity_is_exact_on_a_line_over_irregular_instants_and_gaps():
+    rng = np.random.default_rng(0)
+    t = np.sort(rng.uniform(0, 0.2, 300))
+    x = np.column_stack([3.0 + 40.0 * t, -1.0 - 7.5 * t])
+    x[rng.random(300) < 0.2] = np.nan  # NaN bands
+    v = local_velocity(t, x, 0.002, max_gap_s=0.025)
+    ok = np.isfinite(x[:, 0])
+    assert np.isnan(v[~ok]).all()
+    np.testing.assert_allclose(v[ok], np.broadcast_to([40.0, -7.5], v[ok].shape), atol=1e-8)
+
+
+def test_saccade_onset_offset_and_peak_from_band_samples():
+    t = band_times(0.5)
+    rng = np.random.default_rng(1)
+    on, A, D = 0.2013, 10.0, 0.043
+    x = saccade(t, on, A, D) + rng.normal(0, 0.01, (t.size, 2))
+    ev = detect_events(t, x)
+    assert ev.count == 1
+    assert abs(ev.onset_s[0] - on) < TIMING_TOL_S + ev.onset_uncertainty_s[0]
+    assert abs(ev.offset_s[0] - (on + D)) < TIMING_TOL_S + ev.offset_uncertainty_s[0]
+    assert ev.amplitude_deg[0] == pytest.approx(A, abs=0.05)
+    # the issue's goal: peak velocity within 5 %
+    assert ev.peak_velocity_deg_s[0] == pytest.approx(peak_deg_s(A, D), rel=0.05)
+    assert ev.kind[0] == "saccade"
+
+
+def test_an_onset_in_the_blanking_gap_says_so():
+    t = band_times(0.5)
+    frame_start = 12 * FRAME_S
+    on = frame_start + 12.5 * PERIOD_S  # bands 10-15 are blank
+    ev = detect_events(t, saccade(t, on, 8.0, 0.039))
+    assert ev.count == 1
+    assert ev.onset_uncertainty_s[0] > 2e-3  # half of the ~7 ms between the bracketing bands
+    assert ev.onset_uncertainty_s[0] < 4e-3
+    assert abs(ev.onset_s[0] - on) < ev.onset_uncertainty_s[0] + TIMING_TOL_S
+    clear = detect_events(t, saccade(t, frame_start + 3.3 * PERIOD_S, 8.0, 0.039))
+    assert clear.onset_uncertainty_s[0] <= 0.5 * PERIOD_S + 1e-12
+
+
+def test_one_band_glitch_is_no_saccade_but_a_microsaccade_is_found():
+    t = band_times(0.6)
+    rng = np.random.default_rng(2)
+    x = rng.normal(0, 0.01, (t.size, 2))
+    x[200] += [0.6, 0.0]  # a misidentified band: a jump and back
+    assert detect_events(t, x).count == 0
+    x2 = x.copy()
+    x2[200] -= [0.6, 0.0]
+    x2 += saccade(t, 0.3, 0.4, 0.022, (0.6, 0.8))
+    ev = detect_events(t, x2)
+    assert ev.count == 1 and ev.kind[0] == "microsaccade"
+    assert ev.amplitude_deg[0] == pytest.approx(0.4, abs=0.05)
+
+
+def test_stream_reports_the_offline_events_after_their_settle_time():
+    t = band_times(1.5)
+    rng = np.random.default_rng(3)
+    x = saccade(t, 0.4, 6.0, 0.034) + saccade(t, 0.9, 12.0, 0.047, (0, 1)) \
+        + rng.normal(0, 0.01, (t.size, 2))
+    offline = detect_events(t, x)
+    stream = EventStream()
+    got, unc = [], []
+    for a in range(0, t.size, 10):  # one frame's bands at a time
+        ev = stream.push(t[a:a + 10], x[a:a + 10])
+        got.extend(ev.onset_s)
+        unc.extend(ev.onset_uncertainty_s)
+    assert len(got) == offline.count == 2
+    # the stream's noise estimate (its last second) moves the boundary level a little, and an
+    # onset bracketed by the blanking gap within its bracket
+    assert (np.abs(np.array(got) - offline.onset_s)
+            <= np.array(unc) + offline.onset_uncertainty_s + PERIOD_S).all()
+    settle = EventParams().settle_s
+    lat = np.array(stream.reported_at_s) - offline.offset_s
+    assert (lat >= settle).all() and (lat <= settle + 10 * PERIOD_S + FRAME_S).all()
+
+
+@pytest.mark.parametrize("times, what", [([0.0, 0.001, 0.001], "repeats"),
+                                         ([0.0, 0.002, 0.001], "is before")])
+def test_samples_out_of_order_name_the_sample(times, what):
+    with pytest.raises(ValueError, match=f"sample 2 .*{what}"):
+        detect_events(times, np.zeros((3, 2)))
+
+
+def _samples_file(tmp_path, times, xs, header="frame,strobe,time_s,screen_x_m,screen_y_m,reason"):
+    lines = ["# scet-samples 3", header]
+    for i, (t, x) in enumerate(zip(times, xs)):
+        lines.append(f"0,{i},{t},{x},0.0,ok")
+    p = tmp_path / "samples.csv"
+    p.write_text("\n".join(lines) + "\n")
+    return p
+
+
+@pytest.mark.parametrize("times, xs, match", [
+    ([0.0, 0.002, 0.001], [0.0, 0.0, 0.0], r"line 5: time_s 0.001 is before"),
+    ([0.0, 0.001, 0.001], [0.0, 0.0, 0.0], r"line 5: time_s 0.001 repeats"),
+    ([0.0, 0.001, 0.002], ["nan", "nan", "nan"], r"all 3 samples are NaN"),
+    ([0.0, "x", 0.002], [0.0, 0.0, 0.0], r"line 4: time_s"),
+])
+def test_bad_samples_file_names_file_and_line(tmp_path, times, xs, match):
+    setup = load_scene("paper_sim")
+    p = _samples_file(tmp_path, times, xs)
+    with pytest.raises(TrackerInputError, match=match) as exc:
+        gaze_from_samples_csv(p, setup)
+    assert str(p) in str(exc.value)
+
+
+def test_samples_file_without_time_stamps_is_refused(tmp_path):
+    p = tmp_path / "samples.csv"
+    p.write_text("# scet-samples 3\nframe,strobe,screen_x_m,screen_y_m\n0,0,0.0,0.0\n")
+    with pytest.raises(TrackerInputError, match="no column 'time_s'"):
+        gaze_from_samples_csv(p, load_scene("paper_sim"))
+
+
+def test_events_csv_round_trip_and_version(tmp_path):
+    t = band_times(0.5)
+    ev = detect_events(t, saccade(t, 0.2, 5.0, 0.032))
+    p = write_events_csv(tmp_path / "events.csv", ev)
+    assert events_csv(ev).startswith("# scet-events 1\nonset_s,offset_s,amplitude_deg,")
+    back = read_events_csv(p)
+    np.testing.assert_array_equal(back.onset_s, ev.onset_s)
+    assert list(back.kind) == list(ev.kind)
+    p.write_text(p.read_text().replace("scet-events 1", "scet-events 9"))
+    with pytest.raises(TrackerInputError, match="expected first line"):
+        read_events_csv(p)
+
+
+def test_deterministic_and_shift_invariant():
+    t = band_times(0.5)
+    rng = np.random.default_rng(4)
+    x = saccade(t, 0.25, 4.0, 0.03) + rng.normal(0, 0.01, (t.size, 2))
+    a = detect_events(t, x)
+    b = detect_events(t + 1e4, x)  # a late clock: the fits are relative to each sample
+    np.testing.assert_allclose(b.onset_s - 1e4, a.onset_s, atol=1e-9)
+    assert math.isclose(a.peak_velocity_deg_s[0], b.peak_velocity_deg_s[0], rel_tol=1e-6)
+
+
+def test_sixty_hz_bounds_from_the_intervals():
+    """One sample a frame: the onset lies in the first interval that moved; its middle is the
+    estimate and half the frame the uncertainty (central differences would put it a frame
+    early)."""
+    t = FRAME_S * (np.arange(60) + 0.5)
+    on = 0.3 + 0.004
+    ev = detect_events(t, saccade(t, on, 10.0, 0.043))
+    assert ev.count == 1
+    assert ev.onset_uncertainty_s[0] == pytest.approx(0.5 * FRAME_S)
+    assert abs(ev.onset_s[0] - on) <= 0.5 * FRAME_S
+    assert abs(ev.offset_s[0] - (on + 0.043)) <= 0.5 * FRAME_S
