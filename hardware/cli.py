@@ -306,7 +306,7 @@ def cmd_run(args) -> int:
 
     from estimator.capture import decode_raw, parse_raw_format, to_tracker_frame
     from estimator.folders import track_frame, tracking_calibration
-    from estimator.samples import samples_csv
+    from estimator.tracking import samples_csv
     from estimator.scene import load_scene
     from estimator.tracker import Tracker
 

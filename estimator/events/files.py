@@ -32,7 +32,7 @@ EVENT_COLUMNS = ("onset_s", "offset_s", "amplitude_deg", "peak_velocity_deg_s", 
 
 def gaze_from_samples_csv(path, setup) -> tuple[np.ndarray, np.ndarray]:
     """(n,) sample times (s) and (n, 2) gaze Fick angles (deg, NaN for failed samples) of a
-    samples CSV (:func:`estimator.samples.read_samples_csv`), the gaze from the setup's eye
+    samples CSV (:func:`estimator.tracking.read_samples_csv`), the gaze from the setup's eye
     rotation centre to the screen point.
 
     Raises

@@ -10,7 +10,7 @@ feature-level simulator (:func:`scet_render.simulate.ground_truth_glints`, the c
 glints at the strobe instant's pose) puts at least ``min_glints`` visible glints inside its
 rows (the identities a band can have), or at least one with a valid sample of the band
 before within the prior's reach (the tracker's prior-assisted bands,
-:class:`estimator.samples.BandPrior`: 1.25 ms). A valid sample is the true Fick angles plus
+:class:`estimator.tracking.BandPrior`: 1.25 ms). A valid sample is the true Fick angles plus
 Gaussian noise of ``noise_sd_deg`` on each axis, the per-sample noise of the tracked renders
 of the same setting. The 60 Hz tracker of the same camera has one sample a frame
 (:func:`estimator.banding.calibration_setup`) from all the frame's glints; the ideal 1 kHz

@@ -115,7 +115,7 @@ def test_scet_run_captures_and_tracks_live(tmp_path, dataset, setup, calibration
     """Capture (the dataset replayed at the frame rate), track in the same process, samples
     written as they come; the frames it tracked give the samples the batch tracker gives."""
     from estimator.folders import save_calibration
-    from estimator.samples import read_samples_csv
+    from estimator.tracking import read_samples_csv
 
     save_calibration(calibration, tmp_path / "cal.json")
     rc = main(["run", "--replay", str(dataset), "--realtime", "--frames", "12", "--out",
@@ -161,7 +161,7 @@ def test_track_follow_reads_a_capture_while_it_is_written(tmp_path, dataset, set
     assert proc.returncode == 0 and rc == 0
     written = json.loads((tmp_path / "cap" / "capture.json").read_text())["summary"]
     n_slots = written["frames_written"] + written["dropped_camera"]
-    from estimator.samples import read_samples_csv
+    from estimator.tracking import read_samples_csv
 
     rows = read_samples_csv(tmp_path / "s.csv")
     assert sorted({int(r["frame"]) for r in rows}) == list(range(n_slots))
