@@ -24,6 +24,8 @@ SKIN_OVER_LID_M = 0.4e-3
 #: the iris (m: far below a pixel, far above float32 rounding at 1 cm).
 LID_MARGIN_RAD = math.radians(5.0)
 PUPIL_OFFSET_M = 20e-6
+#: The iris disk's radius over the limbus radius: it reaches under the sclera's mask edge.
+IRIS_OVERLAP = 1.002
 #: The face plane (a 10 cm disk facing -z) lies this far behind the rotation centre (m), past
 #: the rim of the skin shell (13 mm radius, out to 100 deg from the gaze: 2.3 mm behind).
 FACE_BEHIND_CENTER_M = 3e-3
@@ -44,6 +46,12 @@ SCLERA_MASK_TEXELS = 8192
 CORNEA_MODES = ("dielectric", "plain_dielectric", "conductor")
 CORNEA_GEOMETRIES = ("sphere", "mesh")
 CHANNEL_MODES = ("split", "grey")
+#: How strobe light reaches the iris and pupil through the cornea (``channels="split"``):
+#: ``mnee`` by manifold next-event estimation (:mod:`~scet_render.render.mnee`, the default);
+#: ``path`` by plain path tracing (the cornea transmits the strobe channel: unbiased, but a
+#: 0.2 mm light is hit about once in a thousand paths: the brute-force reference for large
+#: lights); ``none`` not at all (the renders before MNEE: iris and pupil lit by the ambient only).
+THROUGH_CORNEA_MODES = ("mnee", "path", "none")
 #: Scene parameters moved by :meth:`EyeScene.set_pose`.
 MOVING_KEYS = ("cornea.to_world", "sclera.to_world", "iris.to_world", "pupil.to_world",
                "cornea.vertex_positions", "cornea.vertex_normals")
@@ -76,10 +84,12 @@ class SceneOptions:
     #: paper_sim 640x480, 16 spp: 2.4-2.9 s a frame at every depth from 6 to 64).
     max_depth: int = 16
     cornea_edge_m: float = 0.15e-3
+    strobe_through_cornea: str = "mnee"
 
     def __post_init__(self):
         for name, allowed in (("cornea", CORNEA_MODES), ("cornea_geometry", CORNEA_GEOMETRIES),
-                              ("channels", CHANNEL_MODES)):
+                              ("channels", CHANNEL_MODES),
+                              ("strobe_through_cornea", THROUGH_CORNEA_MODES)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"{name} must be one of {allowed}, got {getattr(self, name)!r}")
         o = self.eyelid_openness

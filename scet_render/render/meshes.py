@@ -11,7 +11,7 @@ import numpy as np
 from estimator.eye import eye_rotation_matrix
 from estimator.setup import Setup
 
-from .layout import PUPIL_OFFSET_M, SCENE_UNITS_PER_M, SCLERA_MASK_TEXELS, EyeLayout
+from .layout import IRIS_OVERLAP, PUPIL_OFFSET_M, SCENE_UNITS_PER_M, SCLERA_MASK_TEXELS, EyeLayout
 
 # --------------------------------------------------------------------------- meshes
 
@@ -179,7 +179,7 @@ def eye_part_transforms(setup: Setup, layout: EyeLayout, yaw_rad: float, pitch_r
     gaze = R @ np.array([0.0, 0.0, -1.0])
     face = R @ _GAZE_FRAME  # local +z along the gaze
     r_c, r_s = setup.eye.cornea_radius_m, layout.sclera_radius_m
-    r_iris = layout.limbus_radius_m * 1.002  # reaches under the sclera's mask edge
+    r_iris = layout.limbus_radius_m * IRIS_OVERLAP
     if setup.eye.cornea_asphericity == 0:
         cornea = _affine(translation=setup.eye.cornea_center(yaw_rad, pitch_rad),
                          scale=(r_c, r_c, r_c))

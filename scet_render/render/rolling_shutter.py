@@ -312,8 +312,46 @@ class BandedRenderer:
             self._kernels[spp, n_rows] = dr.freeze(render) if frozen else render
         return self._kernels[spp, n_rows]
 
-    def _render_rows_now(self, row_start: int, row_stop: int, spp: int, seed: int):
-        """(rows, W, 3) float32 for the current pose."""
+    def _mnee_kernel(self, spp: int, n_rows: int):
+        # MNEE in a frozen function of its own, with camera rays of its own: an independent
+        # estimate of the light the path tracer leaves out, so the path kernel stays as it
+        # was. Keyed like the path kernel (a recording replays only at its own width; one
+        # replayed at another width overran buffers and aborted). Every lane runs the solve
+        # under a mask: compacting the iris's lanes (mnee_lanes(compact=True)) records and
+        # compiles anew at every count, which changes with the pose.
+        if ("mnee", spp, n_rows) not in self._kernels:
+            import drjit as dr
+
+            from . import mnee as M
+
+            mi = self.mi
+            W, H = self.setup.camera.width_px, self.setup.camera.height_px
+            eta = float(self.setup.eye.refractive_index)
+            radiance = float(self.options.light_radiance)
+
+            def kernel(scene, sensor, row0, seed, lanes, state):
+                n = dr.width(lanes)
+                sampler = mi.load_dict({"type": "independent"})
+                sampler.seed(seed, n)
+                pixel = dr.arange(mi.UInt32, n) // spp
+                film = mi.Point2f(mi.Float(pixel % W), mi.Float(pixel // W + row0))
+                film += sampler.next_2d()
+                ray, weight = sensor.sample_ray(0.0, 0.5, film * mi.ScalarVector2f(1.0 / W,
+                                                                                   1.0 / H),
+                                                mi.Point2f(0.5, 0.5))
+                value = M.mnee_lanes(mi, scene, ray.o, ray.d, sampler.next_1d(),
+                                     sampler.next_2d(), state["pose"], state["lights"], eta,
+                                     radiance, compact=False) * weight[0]
+                dr.eval(value)
+                return value
+
+            self._kernels["mnee", spp, n_rows] = dr.freeze(kernel)
+        return self._kernels["mnee", spp, n_rows]
+
+    def _render_rows_now(self, row_start: int, row_stop: int, spp: int, seed: int,
+                         strobe: bool = True):
+        """(rows, W, 3) float32 for the current pose; ``strobe=False``: an ambient-only
+        instant, whose strobe channel is not used (MNEE is skipped)."""
         mi = self.mi
         W = self.setup.camera.width_px
         n_rows = row_stop - row_start
@@ -325,7 +363,17 @@ class BandedRenderer:
                                         dr.opaque(mi.UInt32, row_start),
                                         dr.opaque(mi.UInt32, seed),
                                         dr.zeros(mi.UInt32, n_rows * W * spp))
-            return np.asarray(out, dtype=np.float32).T.reshape(n_rows, W, 3)
+            img = np.asarray(out, dtype=np.float32).T.reshape(n_rows, W, 3)
+            if es.mnee_enabled and strobe:
+                # Its own sample stream: the seed's complement (seeds are < 2**32).
+                lanes = self._mnee_kernel(spp, n_rows)(es.scene, es.sensor,
+                                            dr.opaque(mi.UInt32, row_start),
+                                            dr.opaque(mi.UInt32, (~seed) & 0xFFFFFFFF),
+                                            dr.zeros(mi.UInt32, n_rows * W * spp),
+                                            es.mnee_state)
+                strobe = np.asarray(lanes, dtype=np.float32).reshape(n_rows, W, spp)
+                img[..., 0] += strobe.mean(axis=2, dtype=np.float32)
+            return img
         key = (row_start, row_stop)
         if key not in self._crop_sensors:
             d = sensor_dict(self.setup.camera, spp)
@@ -333,7 +381,8 @@ class BandedRenderer:
                          "crop_width": W, "crop_height": int(n_rows)}
             d["to_world"] = mi.ScalarTransform4f(d["to_world"])
             self._crop_sensors[key] = mi.load_dict(d)
-        img = mi.render(self.eye_scene.scene, sensor=self._crop_sensors[key], spp=spp, seed=seed)
+        img = mi.render(self.eye_scene.scene, sensor=self._crop_sensors[key], spp=spp, seed=seed,
+                        integrator=self.eye_scene.render_integrator)
         return np.asarray(img, dtype=np.float32).reshape(n_rows, W, 3)
 
     def render_rows(self, yaw_rad: float, pitch_rad: float, row_start: int = 0,
@@ -395,10 +444,11 @@ class BandedRenderer:
             seed = _slice_seed(self.seed, frame_index, k)
             self.eye_scene.set_pose(yaw[k], pitch[k], closure[k])
             if full_frames:
-                img = self.mi.render(self.eye_scene.scene, spp=spp, seed=seed)
+                img = self.mi.render(self.eye_scene.scene, spp=spp, seed=seed,
+                                     integrator=self.eye_scene.render_integrator)
                 img = np.asarray(img, dtype=np.float32)[start:stop]
             else:
-                img = self._render_rows_now(start, stop, spp, seed)
+                img = self._render_rows_now(start, stop, spp, seed, strobe=col >= 0)
             if col >= 0:
                 radiance[start:stop] += plan.row_weights[start:stop, col, None] * img[..., 0]
             radiance[start:stop] += (plan.ambient_weights_s[start:stop, k, None] * inv_pulse

@@ -33,14 +33,16 @@ the kernels read the new transforms from opaque variables: nothing recompiles.
 Channels: near-IR transport is monochrome, so the RGB variant's channels carry light groups.
 With ``channels="split"`` (the renderer's choice) the strobe lights emit in R and the ambient
 environment in G, and one render yields both the strobe-only and the ambient-only image. In that
-mode the dielectric cornea transmits no strobe light: strobe light reaching the iris through the
-cornea is a caustic that unidirectional path tracing samples as fireflies as bright as glints
-(about one sample in a thousand), so the iris and pupil are lit by the ambient light only.
+mode the path tracer carries no strobe light through the cornea (its strobe transmittance is 0):
+strobe light reaching the iris through the cornea is a caustic that unidirectional path tracing
+samples as fireflies as bright as glints (about one sample in a thousand). Manifold next-event
+estimation adds it back exactly (:mod:`~scet_render.render.mnee`, ``strobe_through_cornea``).
 ``channels="grey"`` renders everything white and physically complete (used for export).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -74,6 +76,10 @@ from .meshes import (
     sclera_opacity,
     skin_mesh,
 )
+from .mnee import (light_table, mnee_integrator, mnee_lanes, mnee_radiance, pose_state,
+                   to_drjit)
+
+log = logging.getLogger(__name__)
 
 
 def sensor_dict(camera: Camera, spp: int = 16) -> dict:
@@ -133,7 +139,10 @@ def _cornea_bsdf(setup: Setup, options: SceneOptions) -> dict:
         # (sensor.DEFAULT_ELECTRONS_PER_RADIANCE), glints beyond ~41 deg incidence clip, as
         # the default dielectric's do.
         return {"type": "conductor", "eta": n, "k": 0.0}
-    transmit = [0.0, 1.0, 1.0] if options.channels == "split" else [1.0, 1.0, 1.0]
+    # Split channels: the path tracer carries no strobe light through the cornea unless asked
+    # to (the brute-force reference); MNEE adds it exactly (EyeScene.mnee_enabled).
+    split_blocks = options.channels == "split" and options.strobe_through_cornea != "path"
+    transmit = [0.0, 1.0, 1.0] if split_blocks else [1.0, 1.0, 1.0]
     if options.cornea == "plain_dielectric":
         return {"type": "dielectric", "int_ior": n, "ext_ior": 1.0,
                 "specular_transmittance": _rgb(transmit)}
@@ -323,6 +332,23 @@ class EyeScene:
         self.scene = mi.load_dict(_to_mitsuba(desc.objects, mi, desc))
         self.sensor = self.scene.sensors()[0]
         self.integrator = self.scene.integrator()
+        # Strobe light through the cornea by MNEE: split channels, a refracting cornea, a
+        # JIT variant (its solve runs in float64 Dr.Jit arrays), and the analytic cornea,
+        # sphere or conic (the solve refracts at the exact quadric; a mesh cap is only near it).
+        wanted = (options.channels == "split" and options.cornea != "conductor"
+                  and options.strobe_through_cornea == "mnee")
+        self.mnee_enabled = (wanted and not mi.variant().startswith("scalar")
+                             and options.cornea_geometry == "sphere")
+        if wanted and not self.mnee_enabled:
+            log.warning("%s, %s cornea: no strobe light through the cornea (MNEE needs an "
+                        "LLVM or CUDA variant and the analytic cornea)", mi.variant(),
+                        options.cornea_geometry)
+        self.mnee_lights = (light_table(setup, options, self.layout, mi) if self.mnee_enabled
+                            else None)
+        self.mnee_state = None
+        self.render_integrator = self.scene.integrator()
+        if self.mnee_enabled:
+            self.render_integrator = mnee_integrator(mi, self)
         params = mi.traverse(self.scene)
         params.keep([k for k in MOVING_KEYS + LID_MOVING_KEYS if k in params])
         self._params = params
@@ -366,5 +392,27 @@ class EyeScene:
                                                                      n @ R.T)):
                 p[key] = type(p[key])(np.asarray(data, np.float32).ravel())
         p.update()
+        if self.mnee_enabled:
+            # The lights ride along: a frozen kernel may only read variables it is given.
+            self.mnee_state = {"pose": to_drjit(pose_state(self.setup, self.layout,
+                                                           T["cornea"], *pose), mi),
+                               "lights": self.mnee_lights}
         self.pose, self.closure = pose, closure
         return True
+
+    def mnee(self, sampler, ray):
+        """The strobe radiance MNEE adds along camera rays at the current pose (an
+        ``mi.Color3f``, zero when it is off)."""
+        mi = self.mi
+        if not self.mnee_enabled:
+            return mi.Color3f(0.0)
+        return mnee_radiance(mi, self.scene, sampler, ray, self.mnee_state["pose"],
+                             self.mnee_lights, float(self.setup.eye.refractive_index),
+                             float(self.options.light_radiance))
+
+    def mnee_lanes(self, scene, ray_o, ray_d, u_light, u_point, state):
+        """:func:`~scet_render.render.mnee.mnee_lanes` with this scene's constants; ``scene``
+        (:attr:`scene`) and ``state`` (:attr:`mnee_state`) are a frozen kernel's inputs."""
+        return mnee_lanes(self.mi, scene, ray_o, ray_d, u_light, u_point, state["pose"],
+                          state["lights"], float(self.setup.eye.refractive_index),
+                          float(self.options.light_radiance))

@@ -286,7 +286,9 @@ def test_png_is_the_sensor_model_applied_to_the_exr(dataset, small):
         # Per-frame noise from SeedSequence([seed, sensor stream 2, frame]).
         want = model.apply(radiance, np.random.SeedSequence([SEED, 2, f]))
         assert np.array_equal(png, want)
-        assert np.median(png) == pytest.approx(16, abs=4)  # mostly dark, near the black level
+        # The dark quarter (background outside the lit bands) sits near the black level; the
+        # median does not since the iris is lit through the cornea (MNEE): 23 DN.
+        assert np.percentile(png, 25) == pytest.approx(16, abs=4)
 
 
 def test_glints_land_at_the_exposure_times_their_fresnel_gain(renderer_available, small,

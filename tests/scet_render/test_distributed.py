@@ -216,7 +216,11 @@ def test_a_resume_is_pinned_to_the_recorded_vector_width_or_refused(dataset, tmp
         assert run.returncode == 0, run.stderr
         # The radiance differs in its last bits (17 % of the pixels at 320x240 at 8 lanes
         # against 16, up to 0.02 of ~1); the 10-bit counts of this tiny frame happen not to.
+        # MNEE's discrete choices (a Newton solve converged or not, a ray just inside the
+        # cap or not) may flip in a few iris pixels: each sample carries a whole light there
+        # (measured: 0.04 % of the pixels beyond 0.05, at most 0.11).
         new, old = (read_exr(p / "frames" / "000002.exr").radiance for p in (out, dataset))
-        assert not np.array_equal(new, old) and np.allclose(new, old, atol=0.05)
+        far = np.abs(new - old) > 0.05
+        assert not np.array_equal(new, old) and far.mean() < 0.005
         assert (out / "frames" / "000001.png").read_bytes() == (
             dataset / "frames" / "000001.png").read_bytes()

@@ -1,0 +1,87 @@
+"""Strobe light through the cornea (MNEE): what it costs a frame and what it does to the eye.
+
+Renders one pose of a scene with ``strobe_through_cornea`` = ``none`` (the renders before MNEE:
+the path tracer carries no strobe light through the cornea) and ``mnee``, alternating the two
+``--rounds`` times after a warm-up (kernels compiled), and prints the seconds per frame of
+each, their ratio per round (the machine's speed swings: the ratio within a round is the
+figure), and the mean strobe radiance of the iris and pupil relative to the sclera
+(:func:`scet_render.render.region_labels`) at the cornea's index and at ``--index-near-one``,
+where a barely bending interface must light the iris about as a bare diffuse surface
+(albedo ratio iris / sclera = 0.3 / 0.7 = 0.43, less the iris's lower irradiance).
+
+Usage::
+
+    python benchmarks/bench_mnee.py [--scene paper_sim] [--spp 16] [--rounds 3]
+        [--index-near-one 1.01]
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from estimator.scene import load_scene  # noqa: E402
+from scet_render.render import BandedRenderer  # noqa: E402
+from scet_render.render.layout import SceneOptions  # noqa: E402
+from scet_render.render.regions import REGIONS, region_labels  # noqa: E402
+
+POSE = (0.1, -0.05)
+
+
+def _renderer(setup, mode, spp):
+    return BandedRenderer(setup, spp=spp, ambient=0.0, seed=3,
+                          options=SceneOptions(strobe_through_cornea=mode))
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scene", default="paper_sim")
+    ap.add_argument("--spp", type=int, default=16)
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--index-near-one", type=float, default=1.01)
+    args = ap.parse_args(argv)
+    if args.spp < 1 or args.rounds < 1 or not args.index_near_one >= 1.0:
+        raise SystemExit("error: --spp and --rounds must be >= 1, --index-near-one >= 1")
+    setup = load_scene(args.scene)
+    cam = setup.camera
+    print(f"# MNEE, {args.scene} {cam.width_px}x{cam.height_px}, {args.spp} spp, pose {POSE} "
+          "rad, strobe light only\n")
+    rend = {m: _renderer(setup, m, args.spp) for m in ("none", "mnee")}
+    for r in rend.values():
+        r.render_rows(*POSE, seed=999)  # warm: kernels compiled
+    times = {m: [] for m in rend}
+    for k in range(args.rounds):
+        for m, r in rend.items():
+            t = time.perf_counter()
+            r.render_rows(POSE[0] + 0.01 * k, POSE[1], seed=100 + k)
+            times[m].append(time.perf_counter() - t)
+        print(f"  round {k}: none {times['none'][-1]:.2f} s, mnee {times['mnee'][-1]:.2f} s",
+              file=sys.stderr, flush=True)
+    ratio = np.array(times["mnee"]) / np.array(times["none"])
+    print("| strobe through the cornea | s / frame (min-max) | ratio to none, per round |")
+    print("|---|---:|---:|")
+    for m in rend:
+        cell = "1" if m == "none" else f"{ratio.min():.2f}-{ratio.max():.2f}"
+        print(f"| {m} | {min(times[m]):.2f}-{max(times[m]):.2f} | {cell} |")
+    print("\n| cornea index | mode | iris / sclera | pupil / sclera | pupil / iris |")
+    print("|---:|---|---:|---:|---:|")
+    for n in (setup.eye.refractive_index, args.index_near_one):
+        s = dataclasses.replace(setup, eye=dataclasses.replace(setup.eye, refractive_index=n))
+        for m in ("none", "mnee"):
+            r = _renderer(s, m, args.spp)
+            labels = region_labels(r, *POSE)
+            strobe, _ = r.render_rows(*POSE, seed=5)
+            mean = {name: strobe[labels == i].mean() for i, name in enumerate(REGIONS)}
+            print(f"| {n:g} | {m} | {mean['iris'] / mean['sclera']:.3f} | "
+                  f"{mean['pupil'] / mean['sclera']:.4f} | {mean['pupil'] / mean['iris']:.3f} |")
+    print("\nRegion means include the glints that fall on each region (both modes alike).")
+
+
+if __name__ == "__main__":
+    main()
