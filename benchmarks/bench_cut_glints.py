@@ -1,4 +1,4 @@
-"""The cut-glint flag (``Tracker(flag_cut_glints=True)``, :mod:`estimator.cut_glints`) against
+"""The cut-glint flag (``Tracker(flag_cut_glints=True)``, :mod:`estimator.tracking.cut_glints`) against
 the renderer's labels: recall and precision on lash-cut glints, the expected-flux model's spread
 against each light's median flux alone, and the accuracy with the flag and without on the same
 frames.

@@ -55,6 +55,8 @@ CAPTURE_FORMAT, CAPTURE_VERSION = "scet-capture", 1
 #: Versions read: 1 (capture.json last) and 2 (first, with a state; estimator.capture.writer).
 CAPTURE_VERSIONS = (1, 2)
 CAPTURE_NAME, FRAMES_LIST_NAME = "capture.json", "frames.jsonl"
+#: The values of ``capture.json``'s ``state`` (version 2; estimator.capture.writer writes it).
+STATES = ("capturing", "complete", "interrupted", "failed")
 #: picamera2 metadata every frame line must carry.
 METADATA_KEYS = ("SensorTimestamp", "ExposureTime", "FrameDuration", "AnalogueGain",
                  "SensorBlackLevels")
@@ -127,8 +129,6 @@ class CaptureFolder:
         self.header = read_json(head, CaptureError)
         self.version = check_format(self.header, head, CAPTURE_FORMAT, CAPTURE_VERSIONS, CaptureError)
         self.state = self.header.get("state", "complete") if self.version >= 2 else "complete"
-        from .writer import STATES
-
         if self.state not in STATES:
             raise CaptureError(f"{head}: key 'state' is {self.state!r}, expected one of {STATES}")
         raw = self.header.get("raw")

@@ -26,12 +26,11 @@ from pathlib import Path
 import numpy as np
 
 from ..formats import FRAMES_DIR, PARTIAL_SUFFIX, atomic_write, frame_name
+from .folder import CAPTURE_NAME, FRAMES_LIST_NAME, STATES
 from .raw import encode_raw, parse_raw_format
 
 __all__ = ["CaptureWriter", "STATES"]
 
-#: The values of ``capture.json``'s ``state``.
-STATES = ("capturing", "complete", "interrupted", "failed")
 #: Seconds between flushes to the disk. A raw file is written under a temporary name and
 #: renamed (so a file that exists is whole, whatever kills the process), but not fsynced one
 #: by one: 60 fsyncs a second kept the writer behind a 60 fps camera on the soak machine
@@ -64,8 +63,6 @@ class CaptureWriter:
 
     def __init__(self, folder, header: dict, *, clock=None):
         import time
-
-        from .folder import CAPTURE_NAME, FRAMES_LIST_NAME
 
         self.folder = Path(folder)
         self._head_path = self.folder / CAPTURE_NAME

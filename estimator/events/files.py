@@ -41,7 +41,7 @@ def gaze_from_samples_csv(path, setup) -> tuple[np.ndarray, np.ndarray]:
         Naming the file and row: no ``time_s`` column, a time that is not a finite number,
         times out of order or repeated, or no valid sample at all.
     """
-    from ..samples import read_samples_csv
+    from ..tracking import read_samples_csv
 
     path = Path(path)
     rows = read_samples_csv(path)

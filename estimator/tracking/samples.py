@@ -116,7 +116,7 @@ class GazeSample:
         The band borrowed the previous sample's estimate as a prior (:class:`BandPrior`): its
         few glints were identified and fitted with it.
     flux_flagged : (f,) int
-        Lights whose glints were flagged as cut by a lash (``estimator.cut_glints``) and
+        Lights whose glints were flagged as cut by a lash (``estimator.tracking.cut_glints``) and
         dropped (a prior-assisted sample only records them); empty when not checked.
     """
 

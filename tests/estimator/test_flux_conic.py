@@ -1,6 +1,6 @@
 """The expected glint flux on a conic cornea (estimator.calibration.flux.conic_flux, the
 generalised Coddington equation) and the cut-glint flag of a conic calibration
-(estimator.cut_glints on ``cornea_model = "conic"``)."""
+(estimator.tracking.cut_glints on ``cornea_model = "conic"``)."""
 
 from dataclasses import replace
 
