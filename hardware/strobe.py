@@ -1,9 +1,7 @@
-"""The host side of the strobe firmware's serial protocol (version 1), over pyserial.
-
-One command per line, one reply line per command (``OK ...`` or ``ERR <code> <detail>``); the
-board greets with ``READY SCET-STROBE 1`` after a reset (hardware/README.md, "Serial
-protocol"). Every setting is in ticks of the board's 16 MHz clock. pyserial is the optional
-extra ``hardware``; it is imported when a port is opened.
+"""The host side of the strobe firmware's serial protocol (version 1,
+:mod:`.strobe_protocol`), over pyserial: :class:`StrobeLink`, one connection for a whole run,
+and the settings file it restores after a reset. pyserial is the optional extra
+``hardware``; it is imported when a port is opened.
 
 Resets. Opening an Uno's port resets it: its USB-serial chip (ATmega16U2) drives the 328P's
 RESET through a 100 nF capacitor from DTR, which the host raises on open, and the Optiboot
@@ -36,13 +34,15 @@ import json
 import logging
 import re
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
-from .firmware import F_CPU_HZ
+from .strobe_protocol import (BAUD, GREETING, PROTOCOL_VERSION, StrobeCount, StrobeError,
+                              StrobeReplyError, StrobeSettings, StrobeTimeout, parse_count,
+                              parse_pending, parse_reply, parse_settings, ticks_from_s)
 
 log = logging.getLogger(__name__)
 
+# The protocol's names are re-exported: callers import the link and its errors from here.
 __all__ = ["PROTOCOL_VERSION", "BAUD", "BOOT_S", "StrobeError", "StrobeTimeout",
            "StrobeReplyError", "StrobeSettings", "StrobeCount", "parse_reply", "parse_settings",
            "parse_count", "SettingsStore", "StrobeLink", "ticks_from_s"]
@@ -53,18 +53,6 @@ BOOT_S = 3.0
 #: Interval of the handshake's PINGs (bytes sent to the bootloader are lost, so it repeats).
 PING_INTERVAL_S = 0.25
 
-PROTOCOL_VERSION = 1
-BAUD = 115_200
-_GREETING = f"READY SCET-STROBE {PROTOCOL_VERSION}"
-
-
-class StrobeError(RuntimeError):
-    """A reply that is not the protocol's (the message names the port and the reply)."""
-
-
-class StrobeTimeout(StrobeError):
-    """No (complete) reply line in time."""
-
 
 class _BoardReset(Exception):
     """A greeting where a reply was due (internal)."""
@@ -72,120 +60,6 @@ class _BoardReset(Exception):
 
 class _PortFailed(Exception):
     """The serial port raised (internal): the device went away."""
-
-
-class StrobeReplyError(StrobeError):
-    """The board answered ``ERR``: :attr:`code` (RANGE, SYNTAX, UNKNOWN, LONG) and detail."""
-
-    def __init__(self, message: str, code: str, detail: str):
-        super().__init__(message)
-        self.code, self.detail = code, detail
-
-
-@dataclass(frozen=True, slots=True)
-class StrobeSettings:
-    """The firmware's settings, as ``GET`` reports them (ticks of ``f_cpu_hz``)."""
-
-    pulses: int
-    width_ticks: int
-    period_ticks: int
-    trim_256th: int
-    mode: str
-    running: bool
-    f_cpu_hz: int = F_CPU_HZ
-
-    @property
-    def pulse_s(self) -> float:
-        return self.width_ticks / self.f_cpu_hz
-
-    @property
-    def period_s(self) -> float:
-        """Mean pulse period, the fractional trim included."""
-        return (self.period_ticks + self.trim_256th / 256) / self.f_cpu_hz
-
-    @property
-    def frame_s(self) -> float:
-        return self.pulses * self.period_s
-
-    def to_dict(self) -> dict:
-        return {"pulses": self.pulses, "width_ticks": self.width_ticks,
-                "period_ticks": self.period_ticks, "trim_256th": self.trim_256th,
-                "mode": self.mode, "running": self.running, "f_cpu_hz": self.f_cpu_hz}
-
-
-@dataclass(frozen=True, slots=True)
-class StrobeCount:
-    """``COUNT``: periods and frames since power-up, phase shift still to apply (ticks)."""
-
-    periods: int
-    frames: int
-    pending_ticks: int
-
-
-_FIELD = re.compile(r"([A-Z_]+)=(-?\d+|[A-Z]+)")
-
-
-def parse_reply(line: str, source: str = "strobe") -> dict:
-    """The ``KEY=VALUE`` fields of an ``OK`` reply line.
-
-    Raises
-    ------
-    StrobeReplyError
-        An ``ERR`` reply.
-    StrobeError
-        Anything else that is not ``OK`` followed by well-formed fields.
-    """
-    text = line.strip()
-    if text.startswith("ERR"):
-        parts = text.split(" ", 2)
-        code = parts[1] if len(parts) > 1 else "?"
-        detail = parts[2] if len(parts) > 2 else ""
-        raise StrobeReplyError(f"{source}: the board refused the command: {text}", code, detail)
-    words = text.split(" ")
-    if words[0] != "OK":
-        raise StrobeError(f"{source}: malformed reply {line!r} (expected 'OK ...' or 'ERR ...')")
-    out = {}
-    for w in words[1:]:
-        m = _FIELD.fullmatch(w)
-        if m is None:
-            raise StrobeError(f"{source}: malformed field {w!r} in reply {line!r}")
-        out[m.group(1)] = m.group(2)
-    return out
-
-
-def _require(fields: dict, keys, line: str, source: str, numeric=True) -> dict:
-    out = {}
-    for k in keys:
-        if k not in fields:
-            raise StrobeError(f"{source}: reply {line!r} lacks key {k!r}")
-        v = fields[k]
-        if numeric:
-            if not re.fullmatch(r"-?\d+", v):
-                raise StrobeError(f"{source}: key {k!r} of reply {line!r} is not an integer")
-            v = int(v)
-        out[k] = v
-    return out
-
-
-def parse_settings(line: str, source: str = "strobe") -> StrobeSettings:
-    """A :class:`StrobeSettings` from a ``GET`` (or ``SET``) reply."""
-    f = parse_reply(line, source)
-    n = _require(f, ("PULSES", "WIDTH", "PERIOD", "TRIM", "RUN", "F_CPU"), line, source)
-    mode = _require(f, ("MODE",), line, source, numeric=False)["MODE"]
-    if mode not in ("BANDED", "SINGLE"):
-        raise StrobeError(f"{source}: key 'MODE' of reply {line!r} is {mode!r}, expected BANDED or SINGLE")
-    return StrobeSettings(n["PULSES"], n["WIDTH"], n["PERIOD"], n["TRIM"], mode.lower(),
-                          bool(n["RUN"]), n["F_CPU"])
-
-
-def parse_count(line: str, source: str = "strobe") -> StrobeCount:
-    n = _require(parse_reply(line, source), ("PERIODS", "FRAMES", "PENDING"), line, source)
-    return StrobeCount(n["PERIODS"], n["FRAMES"], n["PENDING"])
-
-
-def ticks_from_s(seconds: float, f_cpu_hz: int = F_CPU_HZ) -> int:
-    """Whole ticks nearest to ``seconds``."""
-    return int(round(float(seconds) * f_cpu_hz))
 
 
 class SettingsStore:
@@ -311,7 +185,7 @@ class StrobeLink:
                     line = self._read_line(max(until - time.monotonic(), 0.0))
                 except StrobeTimeout:
                     break
-                if line == _GREETING:
+                if line == GREETING:
                     self.resets += 1
                     log.info("%s: the board reset (greeting)", self.port)
                     until = min(time.monotonic() + PING_INTERVAL_S, deadline)
@@ -324,7 +198,7 @@ class StrobeLink:
                                           f"this host {PROTOCOL_VERSION}: flash "
                                           "hardware/firmware/build/strobe.hex (hardware/README.md)")
                     return
-                if line and not line.startswith("ERR") and not _GREETING.endswith(line):
+                if line and not line.startswith("ERR") and not GREETING.endswith(line):
                     other = line
             if time.monotonic() >= deadline:
                 got = f"; it sent {other!r}" if other else "; it sent nothing"
@@ -438,16 +312,16 @@ class StrobeLink:
             stale = self._buf + (self._ser.read(waiting) if waiting else b"")
         except (OSError, ValueError) as exc:
             raise _PortFailed(str(exc)) from None
-        if _GREETING.encode() in stale:
+        if GREETING.encode() in stale:
             self._buf = b""
             raise _BoardReset()
         self._buf = b""
         self._write(text)
         line = self._read_line(self.timeout_s)
-        if line == _GREETING:
+        if line == GREETING:
             raise _BoardReset()
         # The port may have been opened in the middle of a greeting, leaving its tail.
-        while line and _GREETING.endswith(line):
+        while line and GREETING.endswith(line):
             line = self._read_line(self.timeout_s)
         return line
 
@@ -478,7 +352,7 @@ class StrobeLink:
                 except _PortFailed as exc:
                     self._reconnect(f"the port failed ({exc})")
                     continue
-                if line != _GREETING:
+                if line != GREETING:
                     raise StrobeError(f"{self.port}: reply {line!r} to {text!r} came late "
                                       f"(after {self.timeout_s:g} s)")
                 self._after_greeting()
@@ -546,8 +420,7 @@ class StrobeLink:
 
     def shift_phase(self, ticks: int) -> int:
         """Delay (positive) or advance the pulse train by ``ticks``; the shift still pending."""
-        return int(_require(parse_reply(self.command(f"PHASE {int(ticks)}"), self.port),
-                            ("PENDING",), "PHASE", self.port)["PENDING"])
+        return parse_pending(self.command(f"PHASE {int(ticks)}"), self.port)
 
     def count(self) -> StrobeCount:
         return parse_count(self.command("COUNT"), self.port)

@@ -48,8 +48,8 @@ LAYERS = {
     ],
     "hardware": [
         {"firmware", "mirror"},
-        {"profiles", "strobe", "lock", "capture"},
-        {"cli"},
+        {"profiles", "strobe_protocol", "strobe", "lock", "capture"},
+        {"cli", "cli_run"},
     ],
 }
 #: What each package may import of the other packages and heavy libraries.
