@@ -118,6 +118,11 @@ def _capture_run(args, *, tracker_worker=None, label="capture"):
                                                 "total_lines": plan.sensor.total_lines}})
         elif link is not None:
             header["strobe"] = strobe
+        if "scene" not in header and getattr(args, "scene", None):
+            # The rig's scene (scet run's --scene), for the commands that read the capture.
+            from estimator.scene import resolve_scene
+
+            header["scene"] = {"toml": resolve_scene(args.scene).read_text(encoding="utf-8")}
         fmt = parse_raw_format(header["raw"]["format"])
         width = header["raw"]["size"][0]
         if args.lock:

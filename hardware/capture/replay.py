@@ -21,7 +21,7 @@ from estimator.capture import (CaptureWriter, capture_header, encode_raw, min_st
                                parse_raw_format)
 from estimator.formats import (LABELS_NAME, MANIFEST_NAME, TIMING_FORMAT, TIMING_NAME, check_format,
                                frame_name, read_json)
-from estimator.scene import load_scene
+from estimator.scene import load_scene, resolve_scene
 
 from ..firmware import F_CPU_HZ
 
@@ -32,15 +32,16 @@ BOOT_TIMESTAMP_NS = 1_000_000_000
 
 
 def _setup_of(folder: Path, manifest: dict, scene):
+    """The replayed frames' setup and its scene TOML text (``--scene``, else the manifest's)."""
     if scene is not None:
-        return load_scene(scene)
+        return load_scene(scene), resolve_scene(scene).read_text(encoding="utf-8")
     text = manifest.get("scene", {}).get("toml") if isinstance(manifest.get("scene"), dict) else None
     if not isinstance(text, str):
         raise ValueError(f"{folder / MANIFEST_NAME}: key 'scene.toml' missing; pass --scene")
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "scene.toml"
         path.write_text(text, encoding="utf-8")
-        return load_scene(path)
+        return load_scene(path), text
 
 
 class ReplayCamera:
@@ -68,7 +69,7 @@ class ReplayCamera:
         manifest_path = folder / MANIFEST_NAME
         manifest = read_json(manifest_path)
         check_format(manifest, manifest_path, "scet-dataset", 1)
-        setup = _setup_of(folder, manifest, scene)
+        setup, self.scene_toml = _setup_of(folder, manifest, scene)
         sensor, strobe = setup.sensor, setup.strobe
         timing_path = folder / TIMING_NAME
         exposure_s, strobe_model = sensor.exposure_s, None
@@ -146,6 +147,9 @@ class ReplayCamera:
             source=self.name, channel_gains=self.gains.tolist())
         header["strobe_model"] = dict(self.strobe_model)
         header["exposure_s"] = float(self.exposure_s)
+        # The scene the frames were rendered with: scet calibrate / track / compare read it
+        # when --scene is not given (scet_render.cli_scene).
+        header["scene"] = {"toml": self.scene_toml}
         return header
 
     # ------------------------------------------------------------------ frames

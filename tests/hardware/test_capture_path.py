@@ -105,6 +105,11 @@ def test_cli_replay_and_track(tmp_path, dataset, setup, calibration, capsys):
     assert main(["track", str(tmp_path / "cap"), "--scene", "paper_sim", "--calibration",
                  str(tmp_path / "cal.json"), "--out", str(tmp_path / "s.csv")]) == 0
     assert "gaze samples from 4 frames" in capsys.readouterr().out
+    # The capture records the replayed dataset's scene: track needs no --scene.
+    assert main(["track", str(tmp_path / "cap"), "--calibration", str(tmp_path / "cal.json"),
+                 "--out", str(tmp_path / "s2.csv")]) == 0
+    assert "capture.json (its scene.toml)" in capsys.readouterr().out
+    assert (tmp_path / "s2.csv").read_bytes() == (tmp_path / "s.csv").read_bytes()
     (tmp_path / "cap" / "capture.json").write_text('{"format": "scet-capture", "version": 9}')
     assert main(["track", str(tmp_path / "cap"), "--scene", "paper_sim", "--calibration",
                  str(tmp_path / "cal.json"), "--out", str(tmp_path / "s.csv")]) == 2
