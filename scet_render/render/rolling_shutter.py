@@ -39,6 +39,7 @@ from estimator.setup import Setup
 
 from .backend import activate, is_jit_variant
 from .layout import DEFAULT_AMBIENT_RADIANCE, SceneOptions
+from .mnee import mnee_lanes
 from .scene import EyeScene, sensor_dict
 
 #: Trajectory samples per strobe period used to measure the eye's angular speed in a frame.
@@ -322,8 +323,6 @@ class BandedRenderer:
         if ("mnee", spp, n_rows) not in self._kernels:
             import drjit as dr
 
-            from . import mnee as M
-
             mi = self.mi
             W, H = self.setup.camera.width_px, self.setup.camera.height_px
             eta = float(self.setup.eye.refractive_index)
@@ -339,7 +338,7 @@ class BandedRenderer:
                 ray, weight = sensor.sample_ray(0.0, 0.5, film * mi.ScalarVector2f(1.0 / W,
                                                                                    1.0 / H),
                                                 mi.Point2f(0.5, 0.5))
-                value = M.mnee_lanes(mi, scene, ray.o, ray.d, sampler.next_1d(),
+                value = mnee_lanes(mi, scene, ray.o, ray.d, sampler.next_1d(),
                                      sampler.next_2d(), state["pose"], state["lights"], eta,
                                      radiance, compact=False) * weight[0]
                 dr.eval(value)

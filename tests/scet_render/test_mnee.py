@@ -23,6 +23,8 @@ from estimator.scene import load_scene
 mitsuba = pytest.importorskip("mitsuba")
 
 from scet_render.render import mnee  # noqa: E402
+from scet_render.render.cornea_bsdf import fresnel_dielectric  # noqa: E402
+from scet_render.render.mnee_reference import axial_irradiance, reference_irradiance  # noqa: E402
 from scet_render.render.layout import SceneOptions, eye_layout  # noqa: E402
 from scet_render.render.meshes import eye_part_transforms  # noqa: E402
 
@@ -87,7 +89,7 @@ def _v64(mi, pts):
 def _irradiance(sol, eta):
     """Irradiance normal to the ray at x per unit intensity: (1 - F) n^2 dOmega/dA_perp."""
     cos_out = np.asarray(sol["cos_out"])
-    F = np.array([mnee._fresnel_np(c, eta) for c in cos_out])
+    F = fresnel_dielectric(cos_out, eta)
     return eta**2 * (1.0 - F) * np.asarray(sol["domega_dperp"])
 
 
@@ -102,7 +104,7 @@ def test_solve_matches_the_irradiance_computed_from_the_light(mi, paper, q):
     eta = setup.eye.refractive_index
     sol = mnee.connect(mnee.to_drjit(state, mi), _v64(mi, x), _v64(mi, z), eta)
     valid = np.asarray(sol["valid"])
-    ref = np.array([mnee.reference_irradiance(state, x[i], z[i], eta) for i in range(len(x))])
+    ref = np.array([reference_irradiance(state, x[i], z[i], eta) for i in range(len(x))])
     both = valid & np.isfinite(ref)
     # Every pair the light side reaches, the solve reaches (and no other).
     assert both.sum() >= 0.99 * np.isfinite(ref).sum() and both.sum() == valid.sum()
@@ -126,7 +128,7 @@ def test_solve_on_the_axis_is_gaussian_optics(mi, paper):
         sol = mnee.connect(mnee.to_drjit(state, mi), _v64(mi, apex - g * t_cm),
                            _v64(mi, apex + g * s_cm), eta)
         E = _irradiance(sol, eta)[0]
-        assert E == pytest.approx(mnee.axial_irradiance(s_cm, t_cm, R_cm, eta),
+        assert E == pytest.approx(axial_irradiance(s_cm, t_cm, R_cm, eta),
                                   rel=REL_AXIAL)
 
 
