@@ -46,6 +46,24 @@ from .scene import EyeScene, sensor_dict
 SPEED_SAMPLES_PER_PERIOD = 16
 
 
+def _band_rays(mi, sensor, row0, seed, lanes, spp: int, W: int, H: int):
+    """Camera rays of a band's samples (``spp`` a pixel, rows from ``row0``, one lane each
+    of ``lanes``): a seeded independent sampler, a jittered film position and a wavelength
+    from it; returns (sampler, ray, weight)."""
+    import drjit as dr
+
+    n = dr.width(lanes)
+    sampler = mi.load_dict({"type": "independent"})
+    sampler.seed(seed, n)
+    pixel = dr.arange(mi.UInt32, n) // spp
+    film = mi.Point2f(mi.Float(pixel % W), mi.Float(pixel // W + row0))
+    film += sampler.next_2d()
+    wavelength = sampler.next_1d()
+    ray, weight = sensor.sample_ray_differential(
+        0.0, wavelength, film * mi.ScalarVector2f(1.0 / W, 1.0 / H), mi.Point2f(0.5, 0.5))
+    return sampler, ray, weight
+
+
 @dataclass(frozen=True, slots=True)
 class FrameRender:
     """One rendered banded frame.
@@ -292,16 +310,7 @@ class BandedRenderer:
             W, H = self.setup.camera.width_px, self.setup.camera.height_px
 
             def render(scene, sensor, integrator, row0, seed, lanes):
-                n = dr.width(lanes)
-                sampler = mi.load_dict({"type": "independent"})
-                sampler.seed(seed, n)
-                pixel = dr.arange(mi.UInt32, n) // spp
-                film = mi.Point2f(mi.Float(pixel % W), mi.Float(pixel // W + row0))
-                film += sampler.next_2d()
-                wavelength = sampler.next_1d()
-                ray, weight = sensor.sample_ray_differential(
-                    0.0, wavelength, film * mi.ScalarVector2f(1.0 / W, 1.0 / H),
-                    mi.Point2f(0.5, 0.5))
+                sampler, ray, weight = _band_rays(mi, sensor, row0, seed, lanes, spp, W, H)
                 L, _, _ = integrator.sample(scene, sampler, ray, None, True)
                 L = L * weight
                 dr.eval(L)  # one path-tracing kernel, then a block reduction per channel
@@ -329,18 +338,10 @@ class BandedRenderer:
             radiance = float(self.options.light_radiance)
 
             def kernel(scene, sensor, row0, seed, lanes, state):
-                n = dr.width(lanes)
-                sampler = mi.load_dict({"type": "independent"})
-                sampler.seed(seed, n)
-                pixel = dr.arange(mi.UInt32, n) // spp
-                film = mi.Point2f(mi.Float(pixel % W), mi.Float(pixel // W + row0))
-                film += sampler.next_2d()
-                ray, weight = sensor.sample_ray(0.0, 0.5, film * mi.ScalarVector2f(1.0 / W,
-                                                                                   1.0 / H),
-                                                mi.Point2f(0.5, 0.5))
+                sampler, ray, weight = _band_rays(mi, sensor, row0, seed, lanes, spp, W, H)
                 value = mnee_lanes(mi, scene, ray.o, ray.d, sampler.next_1d(),
-                                     sampler.next_2d(), state["pose"], state["lights"], eta,
-                                     radiance, compact=False) * weight[0]
+                                   sampler.next_2d(), state["pose"], state["lights"], eta,
+                                   radiance, compact=False) * weight[0]
                 dr.eval(value)
                 return value
 
