@@ -115,15 +115,19 @@ def test_another_corneal_radius_is_found_and_measured(results):
 def test_the_default_cornea_at_16_spp_passes_unperturbed_and_finds_the_gain(world, tmp_path):
     # The product's settings (dielectric cornea, 16 spp), 6 frames, ~12 s a capture here:
     # measured, the unperturbed capture passes every row (glints 0.14 px apart, response
-    # 0.994) and a 20 % gain error reads 1.193.
+    # 0.994) and a 20 % gain error reads 1.193; 1.179 since the iris is lit through the cornea
+    # (MNEE's per-pixel Monte Carlo noise on the iris dilutes the fitted response: 0.03).
     d, scene, setup = world
     out = {}
     for kind in ("nominal", "gain"):
         cap = foreign_capture(tmp_path, scene, kind, frames=6, spp=16, cornea="dielectric")
         out[kind] = compare_capture(cap, setup, frames=6, spp=16, cornea="dielectric", seed=5)
     assert out["nominal"].flagged == []
-    assert abs(out["gain"].findings["response_ratio"] - 1.2) < 0.02
-    assert [r.cause for r in out["gain"].flagged] == ["sensor"]
+    assert abs(out["gain"].findings["response_ratio"] - 1.2) < 0.03
+    # Every flagged row blames the sensor (with the lit iris a second sensor row, beside the
+    # response, is flagged too).
+    causes = [r.cause for r in out["gain"].flagged]
+    assert causes and set(causes) == {"sensor"}
 
 
 def test_cli_writes_report_and_json(results, world, tmp_path, capsys):
@@ -185,9 +189,14 @@ def test_dark_and_saturated_captures_are_clear_errors(world, tmp_path, capsys):
 def test_a_scene_of_another_resolution_is_a_clear_error(world, capsys, tmp_path):
     d, scene, _ = world
     cap = foreign_capture(tmp_path, scene, "nominal", frames=1)
-    line = _one_line_error(capsys, ["compare", str(cap), "--scene", "paper_sim",
-                                    "--report-dir", str(tmp_path / "r")])
-    assert "320x240" in line and "640x480" in line
+    code = main(["compare", str(cap), "--scene", "paper_sim", "--report-dir",
+                 str(tmp_path / "r")])
+    err = capsys.readouterr().err.strip().splitlines()
+    # The replayed capture records its scene: a warning that --scene differs from it, then
+    # the one-line error.
+    assert code == 2 and len(err) == 2 and not any("Traceback" in e for e in err)
+    assert "--scene paper_sim differs from the scene in" in err[0]
+    assert "320x240" in err[1] and "640x480" in err[1]
 
 
 def test_a_missing_capture_is_a_clear_error(capsys, tmp_path):
