@@ -27,7 +27,9 @@ cropped film. :meth:`BandedRenderer.render_frame_reference` renders every instan
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import gc
 import math
 from dataclasses import dataclass
 
@@ -44,6 +46,18 @@ from .scene import EyeScene, sensor_dict
 
 #: Trajectory samples per strobe period used to measure the eye's angular speed in a frame.
 SPEED_SAMPLES_PER_PERIOD = 16
+
+
+@contextlib.contextmanager
+def _collector_held():
+    """Python's cyclic garbage collector off for the duration (restored after)."""
+    was_on = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was_on:
+            gc.enable()
 
 
 def _band_rays(mi, sensor, row0, seed, lanes, spp: int, W: int, H: int):
@@ -365,13 +379,17 @@ class BandedRenderer:
                                         dr.zeros(mi.UInt32, n_rows * W * spp))
             img = np.asarray(out, dtype=np.float32).T.reshape(n_rows, W, 3)
             if es.mnee_enabled and strobe:
-                # Its own sample stream: the seed's complement (seeds are < 2**32).
-                lanes = self._mnee_kernel(spp, n_rows)(es.scene, es.sensor,
-                                            dr.opaque(mi.UInt32, row_start),
-                                            dr.opaque(mi.UInt32, (~seed) & 0xFFFFFFFF),
-                                            dr.zeros(mi.UInt32, n_rows * W * spp),
-                                            es.mnee_state)
-                strobe = np.asarray(lanes, dtype=np.float32).reshape(n_rows, W, spp)
+                # Its own sample stream: the seed's complement (seeds are < 2**32). Python's
+                # cyclic collector is held off while the kernel runs: a collection in the
+                # middle of recording it (its trace makes many objects) aborted Dr.Jit 1.5
+                # once in a fresh process ("Garbage-collecting" in connect).
+                with _collector_held():
+                    lanes = self._mnee_kernel(spp, n_rows)(
+                        es.scene, es.sensor, dr.opaque(mi.UInt32, row_start),
+                        dr.opaque(mi.UInt32, (~seed) & 0xFFFFFFFF),
+                        dr.zeros(mi.UInt32, n_rows * W * spp), es.mnee_state)
+                    lanes = np.asarray(lanes, dtype=np.float32)
+                strobe = lanes.reshape(n_rows, W, spp)
                 img[..., 0] += strobe.mean(axis=2, dtype=np.float32)
             return img
         key = (row_start, row_stop)
