@@ -290,12 +290,16 @@ class CaptureFolder:
             if problem is not None:
                 yield CaptureFrame(f, start, None, problem, d)
                 continue
-            try:
-                image = self.tracker_frame(self.read_raw(d["file"], f"{self._list}, line {number}"), d)
-            except CaptureError as exc:
-                yield CaptureFrame(f, start, None, str(exc), d)
-                continue
-            yield CaptureFrame(f, start, image, None, d)
+            yield self.frame_of_line(f, start, d, f"{self._list}, line {number}")
+
+    def frame_of_line(self, f: int, start_s: float, line: dict, where: str) -> "CaptureFrame":
+        """The :class:`CaptureFrame` of frame ``f`` from its ``frames.jsonl`` line (``where``
+        names it in errors): its raw file decoded, or the reason it cannot be."""
+        try:
+            image = self.tracker_frame(self.read_raw(line["file"], where), line)
+        except CaptureError as exc:
+            return CaptureFrame(f, start_s, None, str(exc), line)
+        return CaptureFrame(f, start_s, image, None, line)
 
 
 def parse_list_line(line: str, number: int, path) -> tuple[tuple | None, str | None]:

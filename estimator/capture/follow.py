@@ -155,12 +155,7 @@ class CaptureFollower:
                 if bad is not None:
                     yield CaptureFrame(f, start, None, bad, d)
                     continue
-                try:
-                    image = cap.tracker_frame(cap.read_raw(d["file"], f"{list_path}, line {number}"), d)
-                except CaptureError as exc:
-                    yield CaptureFrame(f, start, None, str(exc), d)
-                    continue
-                yield CaptureFrame(f, start, image, None, d)
+                yield cap.frame_of_line(f, start, d, f"{list_path}, line {number}")
 
     @staticmethod
     def _period(t0, last_ts, last_f, nominal_ns, t) -> float:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..formats import FRAMES_DIR, PARTIAL_SUFFIX, atomic_write, frame_name
+from ..formats import FRAMES_DIR, atomic_file, atomic_write, frame_name
 from .folder import CAPTURE_NAME, FRAMES_LIST_NAME, STATES
 from .raw import encode_raw, parse_raw_format
 
@@ -104,18 +104,8 @@ class CaptureWriter:
             raise ValueError(f"frame {self.frames}: raw buffer of shape {a.shape}, the header says "
                              f"{self._shape}")
         name = f"{FRAMES_DIR}/{frame_name(self.frames, 'raw')}"
-        path = self.folder / name
-        tmp = path.with_name(path.name + PARTIAL_SUFFIX)
-        try:
-            with open(tmp, "wb") as fh:
-                fh.write(np.ascontiguousarray(a).tobytes())
-            os.replace(tmp, path)
-        except OSError as exc:
-            try:
-                tmp.unlink()
-            except OSError:
-                pass
-            raise OSError(exc.errno, f"cannot write ({exc.strerror})", str(path)) from None
+        with atomic_file(self.folder / name, sync=False) as tmp:
+            tmp.write_bytes(np.ascontiguousarray(a).tobytes())
         self._list.write((json.dumps({"file": name, **metadata}, sort_keys=True) + "\n").encode())
         self._list.flush()
         now = self._clock()

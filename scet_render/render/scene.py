@@ -76,8 +76,7 @@ from .meshes import (
     sclera_opacity,
     skin_mesh,
 )
-from .mnee import (light_table, mnee_integrator, mnee_lanes, mnee_radiance, pose_state,
-                   to_drjit)
+from .mnee import light_table, mnee_integrator, mnee_radiance, pose_state, to_drjit
 
 log = logging.getLogger(__name__)
 
@@ -410,9 +409,3 @@ class EyeScene:
                              self.mnee_lights, float(self.setup.eye.refractive_index),
                              float(self.options.light_radiance))
 
-    def mnee_lanes(self, scene, ray_o, ray_d, u_light, u_point, state):
-        """:func:`~scet_render.render.mnee.mnee_lanes` with this scene's constants; ``scene``
-        (:attr:`scene`) and ``state`` (:attr:`mnee_state`) are a frozen kernel's inputs."""
-        return mnee_lanes(self.mi, scene, ray_o, ray_d, u_light, u_point, state["pose"],
-                          state["lights"], float(self.setup.eye.refractive_index),
-                          float(self.options.light_radiance))

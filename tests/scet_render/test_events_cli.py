@@ -4,13 +4,11 @@ the trajectory's own saccades."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from estimator.events import read_events_csv
-from estimator.scene import load_scene, resolve_scene
+from estimator.scene import load_scene
 from scet_render.cli import main
 
 pytest.importorskip("mitsuba")
@@ -20,17 +18,7 @@ pytest.importorskip("mitsuba")
 #: 7 ms bounds each of a few (a blanking gap's width).
 ONSET_TOL_S = 7e-3
 
-
-def _small_scene(path: Path) -> Path:
-    text = resolve_scene("paper_sim").read_text(encoding="utf-8")
-    for old, new in (("focal_px = 1300.0", "focal_px = 650.0"),
-                     ("resolution_px = [640, 480]", "resolution_px = [320, 240]"),
-                     ("total_lines = 786", "total_lines = 393"),
-                     ("visible_lines = 480", "visible_lines = 240")):
-        assert old in text, f"paper_sim.toml no longer has {old!r}"
-        text = text.replace(old, new)
-    path.write_text(text, encoding="utf-8")
-    return path
+from tests.scet_render.test_workflow import _small_scene  # noqa: E402  (paper_sim at 320x240)
 
 
 @pytest.mark.slow

@@ -78,6 +78,15 @@ def _iris_points(setup, state, lay, n, rng, pose=POSE, frac=0.95):
     return base + np.outer(r * np.cos(th), e1) + np.outer(r * np.sin(th), e2)
 
 
+def _random_pairs(setup, n, seed):
+    """A pose's state and layout, ``n`` random iris points and a random light for each (cm)."""
+    state, lay = _state(setup)
+    rng = np.random.default_rng(seed)
+    x = _iris_points(setup, state, lay, n, rng)
+    lights = np.asarray(setup.lights_world_m) * 100
+    return state, x, lights[rng.integers(0, len(lights), len(x))]
+
+
 def _v64(mi, pts):
     import drjit as dr
 
@@ -96,11 +105,7 @@ def _irradiance(sol, eta):
 @pytest.mark.parametrize("q", [0.0, -0.25], ids=["sphere", "conic"])
 def test_solve_matches_the_irradiance_computed_from_the_light(mi, paper, q):
     setup = paper if q == 0 else _conic(paper, q)
-    state, lay = _state(setup)
-    rng = np.random.default_rng(3)
-    x = _iris_points(setup, state, lay, 200, rng)
-    lights = np.asarray(setup.lights_world_m) * 100
-    z = lights[rng.integers(0, len(lights), len(x))]
+    state, x, z = _random_pairs(setup, 200, 3)
     eta = setup.eye.refractive_index
     sol = mnee.connect(mnee.to_drjit(state, mi), _v64(mi, x), _v64(mi, z), eta)
     valid = np.asarray(sol["valid"])
@@ -133,11 +138,7 @@ def test_solve_on_the_axis_is_gaussian_optics(mi, paper):
 
 
 def test_solve_at_index_one_is_the_inverse_square_law(mi, paper):
-    state, lay = _state(paper)
-    rng = np.random.default_rng(5)
-    x = _iris_points(paper, state, lay, 100, rng)
-    lights = np.asarray(paper.lights_world_m) * 100
-    z = lights[rng.integers(0, len(lights), len(x))]
+    state, x, z = _random_pairs(paper, 100, 5)
     sol = mnee.connect(mnee.to_drjit(state, mi), _v64(mi, x), _v64(mi, z), 1.0 + 1e-9)
     d2 = ((x - z) ** 2).sum(axis=1)
     assert np.asarray(sol["valid"]).all()
@@ -146,11 +147,7 @@ def test_solve_at_index_one_is_the_inverse_square_law(mi, paper):
 
 
 def test_solved_vertex_obeys_snells_law_and_reaches_the_light(mi, paper):
-    state, lay = _state(paper)
-    rng = np.random.default_rng(7)
-    x = _iris_points(paper, state, lay, 300, rng)
-    lights = np.asarray(paper.lights_world_m) * 100
-    z = lights[rng.integers(0, len(lights), len(x))]
+    state, x, z = _random_pairs(paper, 300, 7)
     eta = paper.eye.refractive_index
     sol = mnee.connect(mnee.to_drjit(state, mi), _v64(mi, x), _v64(mi, z), eta)
     ok = np.asarray(sol["valid"])
