@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .cli_data import add_dataset_parsers, add_render_parser
+from .cli_data import add_cluster_arguments, add_dataset_parsers, add_render_parser
 from .cli_progress import StageBars, print_table, progress_bar
 from .cli_scene import folder_scene
 from .runner import MAX_FRAMES, MAX_SEED, MAX_SPP, finite, integer, run
@@ -266,7 +266,8 @@ def cmd_validate(args) -> int:
     bars = StageBars()
     try:
         result = run_validation(args.scene, quick=args.quick, out_dir=args.out, seed=args.seed,
-                                progress=bars.update, report_dir=args.report_dir)
+                                progress=bars.update, report_dir=args.report_dir,
+                                workers=args.workers, address=args.ray_address)
     finally:
         bars.close()
     print(table_markdown(result.rows))
@@ -283,7 +284,8 @@ def cmd_reproduce(args) -> int:
     bars = StageBars()
     try:
         path = run_reproduction(args.out, quick=args.quick, seed=args.seed,
-                                progress=lambda done, total, label="": bars.update("reproduce", done, total, label))
+                                progress=lambda done, total, label="": bars.update("reproduce", done, total, label),
+                                workers=args.workers, address=args.ray_address)
     finally:
         bars.close()
     print(f"report written to {path}")
@@ -456,12 +458,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
     p.add_argument("--out", type=Path, default=Path("out/validate"), help="work folder for renders")
     p.add_argument("--report-dir", type=Path, default=Path("reports"), help="where validation.md goes")
+    add_cluster_arguments(p, "render on")
     p.set_defaults(func=cmd_validate)
 
     p = sub.add_parser("reproduce", help="reproduce the paper's Section 3 side by side with ours")
     p.add_argument("--quick", action="store_true", help="fewer trials: under 2 minutes on 2 cores")
     p.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
     p.add_argument("--out", type=Path, default=Path("reports"), help="report folder (default reports/)")
+    add_cluster_arguments(p, "run the trials on")
     p.set_defaults(func=cmd_reproduce)
 
     p = sub.add_parser("demo", help="feature-level summary of a scene: band layout and glint statistics")

@@ -26,7 +26,8 @@ def cmd_render_calibration(args, setup) -> int:
     bar, update = progress_bar(cols * rows, "frame", f"render calibration {setup.name}")
     try:
         out = render_calibration(setup, args.out, spp=args.spp, cornea=args.cornea,
-                                 seed=args.seed, grid=(cols, rows), progress=update)
+                                 seed=args.seed, grid=(cols, rows), progress=update,
+                                 workers=args.workers, address=args.ray_address)
     finally:
         bar.close()
     print(f"calibration frames {out}: {cols * rows} single-pulse frames of the eye fixating the "
@@ -124,16 +125,23 @@ def cmd_score(args) -> int:
     return 0
 
 
+def add_cluster_arguments(p, what: str) -> None:
+    """``--workers`` and ``--ray-address`` (:mod:`scet_render.cluster`), the same on every command."""
+    p.add_argument("--workers", type=integer(1, 4096),
+                   help=f"{what} a local Ray started for the run with this many workers; "
+                        "the same results as without")
+    p.add_argument("--ray-address", help=f"{what} an existing Ray cluster (ray start --head prints "
+                                         "the address; 'auto' finds a local one). Whoever reaches a "
+                                         "Ray cluster can run code on it: keep it on a private network")
+
+
 def add_render_parser(sub, scene_help: str) -> None:
     """``scet render``."""
     p = sub.add_parser("render", help="render a labelled dataset of banded frames with Mitsuba 3")
     p.add_argument("scene", nargs="?", help=scene_help)
     p.add_argument("--frames", type=integer(1, MAX_RENDER_FRAMES),
                    help="number of frames (banded datasets)")
-    p.add_argument("--workers", type=integer(1, 4096), help="render on a local Ray started for the run with "
-                                                "this many workers (actors), same bytes")
-    p.add_argument("--ray-address", help="render on an existing Ray cluster (ray start --head "
-                                         "prints the address; 'auto' finds a local one)")
+    add_cluster_arguments(p, "render on")
     p.add_argument("--cpus-per-worker", type=integer(1, 1024), default=1,
                    help="CPUs per worker; Dr.Jit's thread count (default 1)")
     p.add_argument("--calibration", metavar="PATTERN",

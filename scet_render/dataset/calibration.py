@@ -24,10 +24,53 @@ from .manifest import _scene_text
 CALIB_FIXATION_S = 0.1
 
 
+class CalibrationFrames:
+    """Renders and writes the calibration frames of one setup: in this process, or as a Ray
+    actor (:func:`render_calibration` with ``workers`` / ``address``).
+
+    ``vector_width`` pins the LLVM backend's width before anything is compiled (the actors of
+    one run all render with the first one's); ``threads`` sets Dr.Jit's thread count.
+    """
+
+    def __init__(self, cal: Setup, traj, out: Path, *, spp: int, cornea: str, seed: int,
+                 eyelid_openness: float | None, vector_width: int | None = None,
+                 threads: int | None = None):
+        from ..render import BandedRenderer, SensorModel
+        from ..render.backend import activate, llvm_target, pin_llvm_vector_width
+
+        mi = activate(None)
+        if threads is not None:
+            import drjit as dr
+
+            dr.set_thread_count(int(threads))
+        self.vector_width = None
+        if mi.variant().startswith("llvm_"):
+            target = pin_llvm_vector_width(vector_width) if vector_width is not None else llvm_target()
+            self.vector_width = None if target is None else target["vector_width"]
+        self.traj, self.out, self.seed = traj, Path(out), seed
+        self.renderer = BandedRenderer(cal, spp=spp, cornea=cornea, seed=seed,
+                                       eyelid_openness=eyelid_openness)
+        self.sensor = SensorModel.from_sensor(cal.sensor)
+
+    def describe(self) -> int | None:
+        """The LLVM vector width this renderer compiles for (None off the LLVM backend)."""
+        return self.vector_width
+
+    def render(self, frame: int) -> int:
+        """Render and write ``frames/NNNNNN.png`` unless it is there; returns ``frame``."""
+        path = self.out / FRAMES_DIR / frame_name(frame, "png")
+        if not path.is_file():
+            radiance = self.renderer.render_frame(self.traj, frame).radiance
+            dn = self.sensor.apply(radiance, np.random.SeedSequence([self.seed, 3, frame]))
+            atomic_write(path, counts_png(dn, self.sensor.bit_depth))
+        return frame
+
+
 def render_calibration(setup: Setup, out_dir, *, spp: int, cornea: str, seed: int = 0,
                        grid=(5, 5), progress=None,
                        eyelid_openness: float | None = 1.0,
-                       scene_text: str | None = None) -> Path:
+                       scene_text: str | None = None, workers: int | None = None,
+                       address: str | None = None) -> Path:
     """Render single-pulse calibration frames of the eye fixating the calib grid.
 
     Writes ``frames/NNNNNN.png`` (frames in the middle of each fixation), ``labels.jsonl``
@@ -38,10 +81,9 @@ def render_calibration(setup: Setup, out_dir, *, spp: int, cornea: str, seed: in
     ``eyelid_openness`` as :func:`scet_render.dataset.render_dataset` (the frames carry no
     manifest: a folder is reused as it is, so give each eyelid setting its own);
     ``scene_text`` is the scene TOML ``setup`` was loaded from (default: read from
-    ``setup.source``).
+    ``setup.source``). With ``workers`` or ``address`` the frames missing from the folder are
+    rendered by Ray actors (:mod:`scet_render.cluster`), the same bytes as here.
     """
-    from ..render import BandedRenderer, SensorModel
-
     out = Path(out_dir)
     effective = effective_scene_text(setup, _scene_text(setup, scene_text))
     text = effective.text
@@ -57,22 +99,44 @@ def render_calibration(setup: Setup, out_dir, *, spp: int, cornea: str, seed: in
     mid = 0.5 * (starts[fix] + ends[fix])
     instant = strobe_instant(cal.strobe.phase_s, cal.strobe.pulse_s)  # pulse centre relative to t0_f
     frames = [int(round((t - instant) / dt)) for t in mid]
-    renderer = BandedRenderer(cal, spp=spp, cornea=cornea, seed=seed,
-                              eyelid_openness=eyelid_openness)
-    sensor = SensorModel.from_sensor(cal.sensor)
-    labels = []
-    for i, f in enumerate(frames):
-        path = out / FRAMES_DIR / frame_name(f, "png")
-        if not path.is_file():
-            radiance = renderer.render_frame(traj, f).radiance
-            dn = sensor.apply(radiance, np.random.SeedSequence([seed, 3, f]))
-            atomic_write(path, counts_png(dn, sensor.bit_depth))
-        labels.extend(frame_labels(cal, traj, f))
-        if progress is not None:
-            progress(i + 1, len(frames))
+    kwargs = dict(spp=spp, cornea=cornea, seed=seed, eyelid_openness=eyelid_openness)
+    todo = [f for f in frames if not (out / FRAMES_DIR / frame_name(f, "png")).is_file()]
+    done = len(frames) - len(todo)
+    if workers is None and address is None or not todo:
+        frames_here = CalibrationFrames(cal, traj, out, **kwargs) if todo else None
+        for i, f in enumerate(frames):
+            if frames_here is not None:
+                frames_here.render(f)
+            if progress is not None:
+                progress(i + 1, len(frames))
+    else:
+        _render_calibration_ray(cal, traj, out, todo, kwargs, workers, address,
+                                lambda n: progress(done + n, len(frames)) if progress else None)
+    labels = [x for f in frames for x in frame_labels(cal, traj, f)]
     atomic_write(out / LABELS_NAME, "".join(json.dumps(x) + "\n" for x in labels))
     atomic_write(out / TIMING_NAME, timing_document({f: f * dt for f in frames},
                                                    exposure_s=cal.sensor.exposure_s,
                                                    strobe=cal.strobe))
     atomic_write(out / SCENE_NAME, text)
     return out
+
+
+def _render_calibration_ray(cal, traj, out, todo, kwargs, workers, address, progress) -> None:
+    """The frames ``todo`` rendered by Ray actors, each a warm :class:`CalibrationFrames`."""
+    from ..cluster import ray_session
+
+    with ray_session(workers, address) as ray:
+        n = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
+        n = min(n, len(todo))
+        actor = ray.remote(num_cpus=1, max_restarts=3, max_task_retries=3)(CalibrationFrames)
+        first = actor.remote(cal, traj, out, threads=1, **kwargs)
+        width = ray.get(first.describe.remote())
+        actors = [first] + [actor.remote(cal, traj, out, vector_width=width, threads=1, **kwargs)
+                            for _ in range(1, n)]
+        from ray.util import ActorPool
+
+        for k, _ in enumerate(ActorPool(actors).map_unordered(lambda a, f: a.render.remote(f), todo)):
+            if progress is not None:
+                progress(k + 1)
+        for a in actors:
+            ray.kill(a, no_restart=True)

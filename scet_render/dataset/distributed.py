@@ -21,21 +21,14 @@ from __future__ import annotations
 
 from typing import Callable
 
+from ..cluster import NAMESPACE, check_workers, ray_session
 from .format import DatasetMismatchError, RenderSummary
 from .jobs import commit_manifest, finalize_dataset, prepare_dataset
 
+__all__ = ["FrameRenderer", "NAMESPACE", "render_dataset_ray"]
+
 #: Ray's restarts of a crashed actor, and retries of a task whose actor died.
 MAX_RESTARTS, MAX_TASK_RETRIES = 3, 3
-#: Namespace of the actors (``scet-render-<i>``), so that tools can find them.
-NAMESPACE = "scet"
-
-
-def _ray():
-    try:
-        import ray
-    except ImportError:
-        raise ValueError("--workers / --ray-address need Ray: pip install 'scet[cluster]'") from None
-    return ray
 
 
 class FrameRenderer:
@@ -91,19 +84,8 @@ def render_dataset_ray(setup, out_dir, *, frames: int, workers: int | None = Non
         progress(len(plan.done), plan.frames)
     if not plan.todo and plan.existing is not None:
         return finalize_dataset(plan, traj, {})
-    if workers is not None and (isinstance(workers, bool) or int(workers) < 1):
-        raise ValueError(f"workers must be >= 1, got {workers!r}")
-    if int(cpus_per_worker) < 1:
-        raise ValueError(f"cpus_per_worker must be >= 1, got {cpus_per_worker!r}")
-    ray = _ray()
-    started = not ray.is_initialized()
-    if started:
-        if address is None:
-            ray.init(num_cpus=(workers or 1) * cpus_per_worker, include_dashboard=False,
-                     namespace=NAMESPACE, log_to_driver=False)
-        else:
-            ray.init(address=address, namespace=NAMESPACE, log_to_driver=False)
-    try:
+    check_workers(workers, cpus_per_worker)
+    with ray_session(workers, address, cpus_per_worker) as ray:
         n = workers or max(1, int(ray.cluster_resources().get("CPU", 1)) // cpus_per_worker)
         n = min(n, len(plan.todo)) or 1
         actor = ray.remote(num_cpus=cpus_per_worker, max_restarts=MAX_RESTARTS,
@@ -133,6 +115,3 @@ def render_dataset_ray(setup, out_dir, *, frames: int, workers: int | None = Non
         for a in actors:
             ray.kill(a, no_restart=True)
         return finalize_dataset(plan, traj, labels)
-    finally:
-        if started:
-            ray.shutdown()

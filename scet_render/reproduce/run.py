@@ -34,43 +34,81 @@ from .paper import (
 # --------------------------------------------------------------------------- orchestration
 
 
-def run_experiments(cfg: ReproductionConfig, progress=None) -> dict:
-    """Run every experiment of ``cfg``; returns plain numbers and arrays (see
-    :mod:`scet_render.reproduce.report` for how they are read)."""
-    from .bands import band_trial, summarize_bands
+_WORKER_CONTEXT = None
 
+
+def _context(ctx):
+    """``ctx``, or this process's own (a Ray worker builds it once, on its first task)."""
+    global _WORKER_CONTEXT
+    if ctx is not None:
+        return ctx
+    if _WORKER_CONTEXT is None:
+        _WORKER_CONTEXT = make_context()
+    return _WORKER_CONTEXT
+
+
+def _calibration_task(ctx, seed, k, t, ef, with_gaze):
+    return calibration_trial(_context(ctx), ef, trial_rng(seed, 5, k, t), with_gaze=with_gaze)
+
+
+def _solver_task(ctx, cfg):
+    return solver_check(_context(ctx), cfg)
+
+
+def _translation_task(ctx, seed, t, steps):
+    return translation_trial(_context(ctx), steps, trial_rng(seed, 7, t))
+
+
+def _band_task(ctx, seed, t, counts):
+    from .bands import band_trial
+
+    return band_trial(_context(ctx), counts, trial_rng(seed, 9, t))
+
+
+def run_experiments(cfg: ReproductionConfig, progress=None, pool=None) -> dict:
+    """Run every experiment of ``cfg``; returns plain numbers and arrays (see
+    :mod:`scet_render.reproduce.report` for how they are read).
+
+    ``pool`` (:class:`scet_render.cluster.TaskPool`) runs the trials as Ray tasks; each trial
+    draws from its own generator (:func:`trial_rng`), so the numbers are those of the serial
+    run (None) whatever the worker count.
+    """
+    from ..cluster import TaskPool
+    from .bands import summarize_bands
+
+    pool = pool if pool is not None else TaskPool()
     ctx = make_context()
+    shipped = None if pool.distributed else ctx  # Ray workers build their own
     n_levels = len(cfg.noise_levels_px)
     total = n_levels * cfg.calibration_trials + 1 + cfg.translation_trials + cfg.band_trials
     done = 0
 
-    def tick(label):
-        nonlocal done
-        done += 1
-        if progress is not None:
-            progress(done, total, label)
+    def ticker(labels):
+        def tick(i):
+            nonlocal done
+            done += 1
+            if progress is not None:
+                progress(done, total, labels[i])
+        return tick
 
-    fig5_rows, gaze = [], []
+    tasks, labels = [], []
     for k, ef in enumerate(cfg.noise_levels_px):
-        rows = []
         for t in range(cfg.calibration_trials):
-            with_gaze = ef == NOISE_PX and t < cfg.gaze_trials
-            row, g = calibration_trial(ctx, ef, trial_rng(cfg.seed, 5, k, t), with_gaze=with_gaze)
-            rows.append(row)
-            if g is not None:
-                gaze.append(g)
-            tick(f"Fig. 5 / Sec. 3.2: e_f = {ef:.2f} px, trial {t + 1} of {cfg.calibration_trials}")
-        fig5_rows.append(rows)
-    check = solver_check(ctx, cfg)
-    tick("solver check: the paper's TRF against our LM")
-    trans = []
-    for t in range(cfg.translation_trials):
-        trans.append(translation_trial(ctx, cfg.translation_steps, trial_rng(cfg.seed, 7, t)))
-        tick(f"Fig. 7 and 8: trial {t + 1} of {cfg.translation_trials}")
-    bands = []
-    for t in range(cfg.band_trials):
-        bands.append(band_trial(ctx, cfg.band_counts, trial_rng(cfg.seed, 9, t)))
-        tick(f"Fig. 9: trial {t + 1} of {cfg.band_trials}")
+            tasks.append((shipped, cfg.seed, k, t, ef, ef == NOISE_PX and t < cfg.gaze_trials))
+            labels.append(f"Fig. 5 / Sec. 3.2: e_f = {ef:.2f} px, trial {t + 1} of {cfg.calibration_trials}")
+    results = pool.map(_calibration_task, tasks, ticker(labels))
+    fig5_rows, gaze = [], []
+    for k in range(n_levels):
+        level = results[k * cfg.calibration_trials:(k + 1) * cfg.calibration_trials]
+        fig5_rows.append([row for row, _ in level])
+        gaze.extend(g for _, g in level if g is not None)
+    check, = pool.map(_solver_task, [(shipped, cfg)], ticker(["solver check: the paper's TRF against our LM"]))
+    trans = pool.map(_translation_task,
+                     [(shipped, cfg.seed, t, cfg.translation_steps) for t in range(cfg.translation_trials)],
+                     ticker([f"Fig. 7 and 8: trial {t + 1} of {cfg.translation_trials}"
+                             for t in range(cfg.translation_trials)]))
+    bands = pool.map(_band_task, [(shipped, cfg.seed, t, cfg.band_counts) for t in range(cfg.band_trials)],
+                     ticker([f"Fig. 9: trial {t + 1} of {cfg.band_trials}" for t in range(cfg.band_trials)]))
     return {
         "config": dataclasses.asdict(cfg),
         "rig": {"rotation_deg": RIG_ROTATION_DEG, "rotation_axis": tuple(float(v) for v in RIG_ROTATION_AXIS),
@@ -121,7 +159,8 @@ def _summarize_translation(cfg, trials) -> dict:
     return out
 
 
-def run_reproduction(out_dir: Path, *, quick: bool, seed: int = 0, progress=None) -> Path:
+def run_reproduction(out_dir: Path, *, quick: bool, seed: int = 0, progress=None,
+                     workers: int | None = None, address: str | None = None) -> Path:
     """Run every experiment and write ``out_dir/paper-reproduction.md`` and
     ``out_dir/figures/*.png``; returns the report's path. Deterministic for a seed.
 
@@ -134,9 +173,15 @@ def run_reproduction(out_dir: Path, *, quick: bool, seed: int = 0, progress=None
     seed : int
     progress : callable, optional
         ``progress(done, total, label)`` after each trial.
+    workers : int, optional
+        Run the trials as tasks of a local Ray with this many CPUs (:mod:`scet_render.cluster`).
+    address : str, optional
+        Run them on an existing Ray cluster instead. Either way the report is the serial run's.
     """
+    from ..cluster import task_pool
     from .report import write_report
 
     cfg = config_for(quick, seed)
-    results = run_experiments(cfg, progress)
+    with task_pool(workers, address) as pool:
+        results = run_experiments(cfg, progress, pool)
     return write_report(Path(out_dir), results)

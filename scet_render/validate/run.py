@@ -162,7 +162,8 @@ def geometric_from(setup: Setup, calibration: Calibration, samples) -> list:
 def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
                    progress: Callable[[str, int, int], None] | None = None,
                    config: ValidationConfig | None = None,
-                   report_dir=None) -> ValidationResult:
+                   report_dir=None, workers: int | None = None,
+                   address: str | None = None) -> ValidationResult:
     """Render, calibrate, track and compare; write the report.
 
     Parameters
@@ -182,6 +183,8 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
     report_dir : Path, optional
         Where ``validation.md`` and its figures go (default ``out_dir``; the CLI passes
         ``reports/``).
+    workers, address : optional
+        Render on Ray (:func:`validate_setup`).
 
     Returns
     -------
@@ -191,7 +194,8 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
     out = Path(out_dir)
     report_dir = Path(report_dir) if report_dir is not None else out
     setup = scaled_setup(load_scene(scene), cfg.scale)
-    r = validate_setup(setup, cfg, out, seed=seed, progress=progress)
+    r = validate_setup(setup, cfg, out, seed=seed, progress=progress, workers=workers,
+                       address=address)
     report = _write_report(report_dir, r.settings, cfg, r.rows, r.noise_by_ppf, r.correct,
                            r.total, r.reasons, r.timings, r.errors, r.tracked, r.assisted,
                            r.assisted_ids)
@@ -203,7 +207,8 @@ def run_validation(scene=None, *, quick: bool, out_dir, seed: int = 0,
 def validate_setup(setup: Setup, cfg: ValidationConfig, out_dir, *, seed: int = 0,
                    progress: Callable[[str, int, int], None] | None = None,
                    eyelid_openness: float | None = 1.0,
-                   scene_text: str | None = None, cornea_model: str = "sphere") -> ValidationRun:
+                   scene_text: str | None = None, cornea_model: str = "sphere",
+                   workers: int | None = None, address: str | None = None) -> ValidationRun:
     """Steps 1-3 of the module docstring on a setup already at the render size (no report):
     what :func:`run_validation` runs on its scene, and ``scet study aspheric`` on derived eyes.
 
@@ -225,12 +230,17 @@ def validate_setup(setup: Setup, cfg: ValidationConfig, out_dir, *, seed: int = 
         The tracker's cornea (:func:`estimator.folders.calibrate_from_folder`); a conic run
         writes ``calibration_conic.json`` and ``samples_<method>_p<ppf>_conic.csv`` beside the
         sphere's, on the same renders.
+    workers : int, optional
+        Render the calibration frames and the datasets on a local Ray with this many workers
+        (:mod:`scet_render.cluster`): the same bytes as the serial run, so the same report.
+    address : str, optional
+        Render on an existing Ray cluster instead (its workers must share ``out_dir``).
 
     Returns
     -------
     ValidationRun
     """
-    from ..dataset import iter_labels, render_dataset
+    from ..dataset import iter_labels, render_dataset, render_dataset_ray
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -242,14 +252,20 @@ def validate_setup(setup: Setup, cfg: ValidationConfig, out_dir, *, seed: int = 
     t = time.perf_counter()
     cal_dir = render_calibration(setup, out / "calibration", spp=cfg.spp, cornea=cfg.cornea,
                                  seed=seed, grid=cfg.calib_grid, progress=stage("calibration"),
-                                 eyelid_openness=eyelid_openness, scene_text=scene_text)
+                                 eyelid_openness=eyelid_openness, scene_text=scene_text,
+                                 workers=workers, address=address)
+    distributed = workers is not None or address is not None
     settings = {}  # pulses per frame -> (setup, test folder)
     for ppf in cfg.pulses_per_frame:
         sset = strobe_setup(setup, ppf)
         test_dir = out / f"test_p{ppf}"
-        render_dataset(sset, test_dir, frames=cfg.frames, spp=cfg.spp, trajectory="fixations",
-                       seed=seed, cornea=cfg.cornea, progress=stage(f"test {ppf} pulses/frame"),
-                       scene_text=scene_text, eyelid_openness=eyelid_openness)
+        kwargs = dict(frames=cfg.frames, spp=cfg.spp, trajectory="fixations", seed=seed,
+                      cornea=cfg.cornea, progress=stage(f"test {ppf} pulses/frame"),
+                      scene_text=scene_text, eyelid_openness=eyelid_openness)
+        if distributed:
+            render_dataset_ray(sset, test_dir, workers=workers, address=address, **kwargs)
+        else:
+            render_dataset(sset, test_dir, **kwargs)
         settings[ppf] = (sset, test_dir)
     timings["render"] = time.perf_counter() - t
 

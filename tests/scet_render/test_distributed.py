@@ -224,3 +224,46 @@ def test_a_resume_is_pinned_to_the_recorded_vector_width_or_refused(dataset, tmp
         assert not np.array_equal(new, old) and far.mean() < 0.005
         assert (out / "frames" / "000001.png").read_bytes() == (
             dataset / "frames" / "000001.png").read_bytes()
+
+
+def test_calibration_frames_on_two_workers_are_the_serial_bytes(small, tmp_path):
+    """``render_calibration`` with workers (``scet validate --workers``, ``scet render
+    --calibration --workers``): the same PNGs, labels, timing and scene as the serial run, and a
+    folder with every frame present needs no worker."""
+    from scet_render.dataset import render_calibration
+
+    kw = dict(spp=SPP, cornea="conductor", seed=SEED, grid=(2, 2))
+    render_calibration(small, tmp_path / "serial", **kw)
+    calls = []
+    render_calibration(small, tmp_path / "ray", workers=2, progress=lambda d, t: calls.append((d, t)),
+                       **kw)
+    assert tree_digest(tmp_path / "ray") == tree_digest(tmp_path / "serial")
+    assert sorted(calls) == [(k, 4) for k in range(1, 5)]
+    # ... and a finished folder starts no Ray (a wrong address would fail if it did).
+    render_calibration(small, tmp_path / "ray", address="127.0.0.1:1", **kw)
+    assert tree_digest(tmp_path / "ray") == tree_digest(tmp_path / "serial")
+
+
+def test_reproduction_trials_on_two_workers_give_the_serial_numbers():
+    """``scet reproduce --workers``: every trial draws from its own generator, so the results of
+    Ray tasks are the serial run's exactly, in the same order."""
+    from scet_render.cluster import TaskPool, ray_session
+    from scet_render.reproduce import ReproductionConfig, run_experiments
+    from tests.scet_render.test_reproduce import _same
+
+    cfg = ReproductionConfig(True, 3, (0.0, 0.5), 2, 1, 2, 4, 2, (1.0,), 2, (4, 20))
+    serial = run_experiments(cfg)
+    labels = []
+    with ray_session(workers=2) as r:
+        distributed = run_experiments(cfg, lambda d, t, label: labels.append(d), TaskPool(r))
+    assert _same(serial, distributed)
+    assert sorted(labels) == list(range(1, 2 * 2 + 1 + 2 + 2 + 1))
+
+
+@pytest.mark.parametrize("workers", [0, -1, True, 1.5])
+def test_a_bad_worker_count_is_refused_in_one_line(workers):
+    from scet_render.cluster import ray_session
+
+    with pytest.raises(ValueError, match="workers must be an integer >= 1"):
+        with ray_session(workers=workers):
+            pass
