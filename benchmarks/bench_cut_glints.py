@@ -13,7 +13,7 @@ label (clear: blocked fraction 0; lash-cut: a lash blocks 0-1 of it). Usage:
     python benchmarks/bench_cut_glints.py --out DIR [--spp 16] [--cornea dielectric]
                                           [--frames 48] [--no-lashes] [--residual-flag K]
 
-Numbers measured with it are in README, "Glints cut by a lash".
+Numbers measured with it are in docs/guide/rendering.md, "Glints cut by a lash".
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Scene files: one versioned TOML format, loaded into an immutable :class:`~estimator.setup.Setup`.
 
-The format is documented key by key in ``scenes/README.md``; ``scenes/paper_sim.toml`` is the
+The format is documented key by key in ``docs/formats/scene.md``; ``scenes/paper_sim.toml`` is the
 commented reference. Quantities carry their unit in the key name (``exposure_ms``,
 ``position_m``, ``span_deg``); each quantity accepts the units listed in :data:`UNITS` and
 must be given exactly once. Every problem raises :class:`~estimator.errors.SceneError` naming

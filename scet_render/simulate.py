@@ -203,7 +203,7 @@ def glint_statistics(obs: GlintObservations) -> dict:
 
 def save_observations(path: str | Path, obs: GlintObservations, setup: Setup) -> Path:
     """Write a simulation to ``.npz`` (arrays, no pickles) or ``.csv`` (one row per target and
-    light), atomically. The formats are described in the README ("Simulation files")."""
+    light), atomically. The formats are described in docs/formats/glints.md ("Simulation files")."""
     path = Path(path)
     meta = {
         "format": SIM_FORMAT, "version": SIM_VERSION, "scene": setup.name,

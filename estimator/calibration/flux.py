@@ -30,7 +30,7 @@ to the irradiance found by moving the camera across the reflected beam on the ex
 reflection).
 
 F is the unpolarised Fresnel reflectance of the tear film (n = 1.376) for a real cornea and the
-renderer's ``dielectric`` and ``conductor`` corneas (README, "The cornea"); ``fresnel="constant"``
+renderer's ``dielectric`` and ``conductor`` corneas (docs/guide/rendering.md, "The cornea"); ``fresnel="constant"``
 models a mirror of one reflectance (the renderer's conductor before issue 14 was scaled by F(0)
 only). The calibration fits both and keeps the one whose log ratios spread less (it is
 recorded in the file).

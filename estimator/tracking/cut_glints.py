@@ -2,7 +2,7 @@
 
 A lash across a glint's light path leaves part of the glint: its centroid moves (a median
 0.75 px on paper_sim at 16 spp, up to 1.7 px) and its flux drops (a median 0.64 of the
-unoccluded glint's; README, "Moving lids, blinks and lashes"). The expected flux of every
+unoccluded glint's; docs/guide/rendering.md, "Moving lids, blinks and lashes"). The expected flux of every
 identified glint at the fitted pose (:class:`estimator.calibration.GlintFlux`: each light's
 calibrated power times the convex mirror's reflected irradiance) tells such a glint from a
 clear one; :func:`flagged` finds them, and the tracker does the band again without them

@@ -91,7 +91,7 @@ class Tracker:
         ``"orbit"`` model.
     flag_cut_glints : bool or None
         Drop glints whose flux says a lash cuts them and do the band again without them
-        (:meth:`band`, :mod:`estimator.tracking.cut_glints`; README "Moving lids, blinks and
+        (:meth:`band`, :mod:`estimator.tracking.cut_glints`; docs/guide/rendering.md, "Moving lids, blinks and
         lashes"). It needs the calibration's ``glint_flux`` for the rig's lights: ``True``
         refuses a calibration without it, ``None`` (the default) flags where the calibration
         has it (a calibration from images, spherical or conic), ``False`` never flags.

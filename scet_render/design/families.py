@@ -98,7 +98,7 @@ class Arc:
         return 2 * r * math.sin(step / 2)
 
     def scene_table(self, eye_center_m, name: str, source_diameter_mm: float) -> str:
-        """The arc as a ``[[lights]]`` table of ``kind = "arc"`` (scene format, README)."""
+        """The arc as a ``[[lights]]`` table of ``kind = "arc"`` (docs/formats/scene.md)."""
         c, r, axis, e1, e2 = self.circle
         a0 = math.radians(self.phi0_deg)
         first = np.asarray(eye_center_m, float) + c + r * (math.cos(a0) * e1 + math.sin(a0) * e2)

@@ -49,7 +49,7 @@ DEFAULT_ASPHERICITIES = (0.0, -0.1, -0.25, -0.45)
 LID_CONDITIONS = ("on", "off", "moving")
 #: The ``[eyelids]`` table of the moving-lid condition: the default gains and margins (clear
 #: of the cornea by 5 deg at every gaze at the screen), 40 lashes, 15 blinks a minute
-#: (a typical spontaneous rate, 4-50/min: Bentivoglio et al. 1997, as the README cites).
+#: (a typical spontaneous rate, 4-50/min: Bentivoglio et al. 1997, as docs/formats/scene.md cites).
 MOVING_LIDS = "[eyelids]\nlash_count = 40\nblink_rate_per_min = 15\n"
 _LID_OPENNESS = {"on": 1.0, "off": None, "moving": 1.0}
 _LID_FOLDERS = {"on": "lids", "off": "nolids", "moving": "movinglids"}
