@@ -89,6 +89,15 @@ class StrobeLabel:
         scenes without moving lids (and every label written before they existed).
     glints_blocked_fraction : (n,) float, optional
         Fraction of each glint's light paths blocked: 1 hidden, in (0, 1) cut.
+    pupil_center_px : (2,) float, optional
+        The pupil's centre as imaged through the cornea (NaN where its ray does not reach the
+        camera through the cap); None for datasets written before pupil labels existed.
+    pupil_ellipse_px : (5,) float, optional
+        ``[u, v, major, minor, angle_deg]``: the ellipse of the refracted pupil edge (full axis
+        lengths, px; the major axis's angle from +u toward +v); NaN where part of the edge is
+        not seen; None for older datasets.
+    pupil_diameter_mm : float, optional
+        The pupil's diameter at the strobe instant; None for older datasets.
     """
 
     frame: int
@@ -107,6 +116,9 @@ class StrobeLabel:
     lid_closure: float = 0.0
     glints_occluder: tuple | None = None
     glints_blocked_fraction: np.ndarray | None = None
+    pupil_center_px: np.ndarray | None = None
+    pupil_ellipse_px: np.ndarray | None = None
+    pupil_diameter_mm: float | None = None
 
 
 def _exr():
