@@ -46,7 +46,8 @@ class FrameRenderer:
         from .writer import dataset_trajectory, open_renderer
 
         self.plan = plan
-        self.trajectory = dataset_trajectory(plan.setup, plan.trajectory, plan.frames, plan.seed)
+        self.trajectory = dataset_trajectory(plan.setup, plan.trajectory, plan.frames, plan.seed,
+                                             plan.pupil)
         self.renderer, self.variant, self.settings, self.host = open_renderer(
             plan, threads=threads, vector_width=vector_width)
 
@@ -86,7 +87,7 @@ def render_dataset_ray(setup, out_dir, *, frames: int, workers: int | None = Non
     plan = prepare_dataset(setup, out_dir, frames=frames, spp=spp, trajectory=trajectory,
                            seed=seed, variant=variant, cornea=cornea, sensor=sensor,
                            scene_text=scene_text, eyelid_openness=eyelid_openness)
-    traj = dataset_trajectory(setup, plan.trajectory, plan.frames, plan.seed)
+    traj = dataset_trajectory(setup, plan.trajectory, plan.frames, plan.seed, plan.pupil)
     if progress is not None:
         progress(len(plan.done), plan.frames)
     if not plan.todo and plan.existing is not None:

@@ -35,6 +35,27 @@ _STREAM_TRAJECTORY = 0
 _STREAM_RENDER = 1
 _STREAM_SENSOR = 2
 _STREAM_BLINKS = 3
+_STREAM_PUPIL = 4
+
+#: Suffix of a frame's segmentation mask beside its EXR and PNG: ``frames/NNNNNN_mask.png``
+#: (uint8 indices into :data:`scet_render.render.MASK_CLASSES`).
+MASK_SUFFIX = "_mask"
+
+
+def mask_name(frame: int) -> str:
+    """``NNNNNN_mask.png``: the file name of frame ``frame``'s segmentation mask."""
+    return f"{int(frame):06d}{MASK_SUFFIX}.png"
+
+
+def mask_png(mask) -> bytes:
+    """PNG bytes of an (H, W) uint8 mask, compression :data:`PNG_COMPRESSION`."""
+    import cv2
+
+    ok, png = cv2.imencode(".png", np.asarray(mask, dtype=np.uint8),
+                           [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
+    if not ok:
+        raise RuntimeError("OpenCV could not encode a mask as PNG")
+    return png.tobytes()
 
 
 class DatasetError(InputError):

@@ -240,8 +240,9 @@ def _pupil_fields(d: Doc) -> dict:
         return {}
     out = {"pupil_diameter_mm": d.number("pupil_diameter_mm", lo=0.0, hi=100.0)}
     for name, n in (("pupil_center_px", 2), ("pupil_ellipse_px", 5)):
-        value = d.array(name, (n,), lo=-_PIXEL, hi=_PIXEL, allow_null=True)
-        out[name] = np.full(n, np.nan) if value is None else value
+        # null: not seen (its ray misses the cap, or part of the edge is hidden).
+        out[name] = (np.full(n, np.nan) if d.data.get(name, 0) is None
+                     else d.array(name, (n,), lo=-_PIXEL, hi=_PIXEL))
     return out
 
 

@@ -69,15 +69,19 @@ from estimator.setup import Setup
 
 from ..motion import (
     FixationalNoise,
+    PupilModel,
     Trajectory,
     blink_schedule,
     fixation_sequence,
+    pupil_schedule,
     saccade_sequence,
     with_blinks,
+    with_pupil,
 )
 from ..render import SensorModel
 from .format import (
     _STREAM_BLINKS,
+    _STREAM_PUPIL,
     _STREAM_RENDER,
     _STREAM_SENSOR,
     _STREAM_TRAJECTORY,
@@ -94,6 +98,8 @@ from .format import (
     _check_kind,
     _exr,
     counts_png,
+    mask_name,
+    mask_png,
 )
 from .jobs import DatasetPlan, commit_manifest, finalize_dataset, prepare_dataset
 from .labels import frame_labels, visible_bands
@@ -101,7 +107,8 @@ from .labels import frame_labels, visible_bands
 # --------------------------------------------------------------------------- trajectories
 
 
-def dataset_trajectory(setup: Setup, kind: str, frames: int, seed: int) -> Trajectory:
+def dataset_trajectory(setup: Setup, kind: str, frames: int, seed: int,
+                       pupil: PupilModel | None = None) -> Trajectory:
     """The eye motion of a dataset: seeded, on the setup's screen, covering every frame.
 
     Parameters
@@ -116,6 +123,9 @@ def dataset_trajectory(setup: Setup, kind: str, frames: int, seed: int) -> Traje
     frames : int
         Frames to cover: the trajectory lasts at least (frames + 1) Δt.
     seed : int
+    pupil : PupilModel, optional
+        The pupil's dynamics: a seeded :func:`~scet_render.motion.pupil_schedule` from the
+        scene's pupil size (its own random stream). None: the scene's size throughout.
 
     Returns
     -------
@@ -146,6 +156,10 @@ def dataset_trajectory(setup: Setup, kind: str, frames: int, seed: int) -> Traje
         blinks = np.random.default_rng(np.random.SeedSequence([seed, _STREAM_BLINKS]))
         traj = with_blinks(traj, blink_schedule(traj.duration_s,
                                                 setup.eyelids.blink_rate_per_min, blinks))
+    if pupil is not None:
+        gen = np.random.default_rng(np.random.SeedSequence([seed, _STREAM_PUPIL]))
+        traj = with_pupil(traj, pupil_schedule(traj.duration_s, setup.eye.pupil_diameter_m,
+                                               gen, pupil))
     return traj
 
 
@@ -166,6 +180,8 @@ def render_dataset(
     scene_text: str | None = None,
     progress: Callable[[int, int], None] | None = None,
     eyelid_openness: float | None = 1.0,
+    masks: bool = True,
+    pupil: PupilModel | None = None,
 ) -> RenderSummary:
     """Render a banded-frame dataset (or finish an interrupted one) into ``out_dir``.
 
@@ -199,6 +215,11 @@ def render_dataset(
     eyelid_openness : float or None
         The renderer's static eyelids: 1 clears the cornea for every gaze at the screen, 0 is
         closed, None renders no lids (:class:`scet_render.render.BandedRenderer`).
+    masks : bool
+        Write each frame's segmentation mask, ``frames/NNNNNN_mask.png``
+        (:func:`scet_render.render.regions.frame_mask`).
+    pupil : PupilModel, optional
+        Vary the pupil's size over time (:func:`dataset_trajectory`); None keeps the scene's.
 
     Returns
     -------
@@ -224,8 +245,9 @@ def render_dataset(
     """
     plan = prepare_dataset(setup, out_dir, frames=frames, spp=spp, trajectory=trajectory,
                            seed=seed, variant=variant, cornea=cornea, sensor=sensor,
-                           scene_text=scene_text, eyelid_openness=eyelid_openness)
-    traj = dataset_trajectory(setup, plan.trajectory, plan.frames, plan.seed)
+                           scene_text=scene_text, eyelid_openness=eyelid_openness,
+                           masks=masks, pupil=pupil)
+    traj = dataset_trajectory(setup, plan.trajectory, plan.frames, plan.seed, plan.pupil)
     renderer = None
     if plan.todo or plan.existing is None:
         renderer = make_renderer(plan)
@@ -290,12 +312,14 @@ def render_frame(plan: DatasetPlan, renderer, trajectory: Trajectory, frame: int
     (idempotent: the same bytes whoever writes it, never a half file); its labels. The
     manifest must be committed first (by this process or the driver)."""
     return _render_frame(renderer, plan.setup, plan.sensor, trajectory, frame, plan.seed,
-                         plan.frames_dir, plan.scene_sha256)
+                         plan.frames_dir, plan.scene_sha256, plan.masks)
 
 
 def _render_frame(renderer, setup: Setup, sensor: SensorModel, traj: Trajectory, frame: int,
-                  seed: int, frames_dir: Path, scene_sha256: str) -> list[dict]:
-    """Render, check and write one frame; its labels, from the bands it was checked against."""
+                  seed: int, frames_dir: Path, scene_sha256: str,
+                  masks: bool = False) -> list[dict]:
+    """Render, check and write one frame (and its mask); its labels, from the bands it was
+    checked against."""
 
     result = renderer.render_frame(traj, frame)
     radiance = np.ascontiguousarray(result.radiance, dtype=np.float32)
@@ -330,8 +354,14 @@ def _render_frame(renderer, setup: Setup, sensor: SensorModel, traj: Trajectory,
     with atomic_file(frames_dir / frame_name(frame, "exr")) as tmp:
         with _exr().File(header, {"Y": radiance}) as exr:
             exr.write(str(tmp))
+    labels = frame_labels(setup, traj, frame, bands)
+    if masks:
+        from ..render import frame_mask
+
+        atomic_write(frames_dir / mask_name(frame), mask_png(frame_mask(renderer, traj, frame,
+                                                                         labels)))
     atomic_write(frames_dir / frame_name(frame, "png"), counts_png(dn, sensor.bit_depth))
-    return frame_labels(setup, traj, frame, bands)
+    return labels
 
 
 def _make_renderer(setup: Setup, *, spp: int, variant, cornea: str, seed: int,

@@ -56,7 +56,16 @@ from .lids import (
 from .meshes import cornea_mesh, cornea_opacity, eye_part_transforms, eyelid_meshes, sclera_opacity, skin_mesh
 from .occlusion import OCCLUDER_NAMES, SPOT_SAMPLES, GlintOcclusion, LidOccluder, occluder_names
 from .pupil import BOUNDARY_POINTS, PupilImage, fit_ellipse_px, pupil_image, pupil_points
-from .regions import REGIONS, region_labels
+from .regions import (
+    MASK_CLASSES,
+    REGIONS,
+    classify_rays,
+    frame_mask,
+    glint_radius_px,
+    paint_glints,
+    pose_mask,
+    region_labels,
+)
 from .rolling_shutter import (
     SPEED_SAMPLES_PER_PERIOD,
     BandedRenderer,
@@ -82,7 +91,8 @@ from .sensor import (
 )
 
 __all__ = [
-    "REGIONS", "region_labels",
+    "REGIONS", "region_labels", "MASK_CLASSES", "classify_rays", "frame_mask",
+    "glint_radius_px", "paint_glints", "pose_mask",
     "LLVM_MIN_VERSION", "SUPPORTED_VARIANTS", "VARIANT_ENV", "LLVM_ENV", "DEFAULT_LLVM_GLOBS",
     "VariantChoice", "BackendUnavailableError", "llvm_version", "find_libllvm", "gpu_available", "choose_variant",
     "activate", "is_jit_variant", "export_mitsuba", "DEFAULT_LIGHT_RADIANCE",
