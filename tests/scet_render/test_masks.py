@@ -254,3 +254,22 @@ def test_a_new_pupil_size_renders_without_recompiling(renderer, small, still):
     dark0 = (inside & (out0.radiance < 0.1)).sum()
     dark = (inside & (out.radiance < 0.1)).sum()
     assert dark / dark0 == pytest.approx((3.0 / 4.0) ** 2, rel=TOL.dark_area_ratio)
+
+
+def test_the_classifier_refracts_at_the_conic_cornea(small):
+    """An aspheric cornea: the mask's pupil (Mitsuba's ellipsoid, its far side cut away) is
+    the conic labels' refracted pupil, not the sphere's."""
+    pytest.importorskip("mitsuba")
+    from scet_render.render import BandedRenderer, pose_mask, pupil_image
+
+    conic = dataclasses.replace(small, eye=dataclasses.replace(small.eye,
+                                                               cornea_asphericity=-0.454))
+    renderer = BandedRenderer(conic, spp=1, seed=1)
+    pose = (0.15, 0.05)
+    mask = pose_mask(renderer, *pose)
+    want = _ellipse_raster(pupil_image(conic, *pose).ellipse_px, mask.shape)
+    sphere = _ellipse_raster(pupil_image(small, *pose).ellipse_px, mask.shape)
+    pupil = mask == CLASSES.index("pupil")
+    assert _iou(pupil, want) > TOL.pupil_iou
+    assert _iou(pupil, want) > _iou(pupil, sphere)
+    assert np.isin(mask, [CLASSES.index(c) for c in ("iris", "sclera")]).any()
