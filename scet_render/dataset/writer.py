@@ -6,6 +6,7 @@ Layout of a dataset folder (format ``scet-dataset``, version 1)::
     frames/000000.exr    linear radiance, float32, one channel "Y" (pulse-weighted, as rendered)
     frames/000000.png    sensor output (raw DN, black level included): 16-bit PNG for bit
                          depths above 8, 8-bit PNG otherwise
+    frames/000000_mask.png  segmentation mask, 8-bit (unless rendered with masks=False)
     ...
     labels.jsonl         one JSON object per strobe sample; written last
 
@@ -37,6 +38,43 @@ pulse order::
     glints_px              per light, the ground-truth glint pixel [u, v] (OpenCV pixel-centre
                            convention), or null where the reflection does not exist
     glints_visible         per light, whether the glint is on the corneal cap and seen
+    pupil_center_px        the pupil's centre as imaged through the cornea [u, v]: the
+                           projection of the point where the ray from the centre refracts
+                           toward the camera (exact, on the sphere or the conic cornea;
+                           :mod:`scet_render.render.pupil`); null where that ray misses the cap
+    pupil_ellipse_px       [u, v, major, minor, angle_deg]: cv2.fitEllipse of 64 refracted
+                           points of the pupil's edge (full axis lengths, px; the major axis's
+                           angle from +u toward +v, [0, 180)); null where any is not seen
+    pupil_diameter_mm      the pupil's diameter at the strobe instant (the scene's
+                           eye.pupil_diameter_mm, or the trajectory's pupil trace)
+
+Datasets written before the pupil labels existed lack the three pupil keys (their
+:class:`StrobeLabel` fields read None); the format version stays 1. The ellipse's centre is
+not the centre's image: perspective and the cornea's uneven magnification put them 1-2 px
+apart at 320x240 on paper_sim (``benchmarks/bench_pupil_labels.py``); a detector that fits
+the pupil's outline measures the ellipse.
+
+Segmentation masks (``frames/NNNNNN_mask.png``, one uint8 class per pixel, the index into
+:data:`scet_render.render.MASK_CLASSES`)::
+
+    0 none     nothing of the eye or face (a light seen directly, the environment)
+    1 skin     the skin around the eye and the face beyond it
+    2 sclera   3 iris   4 pupil  (iris and pupil seen through the cornea, refracted)
+    5 lid      6 lash   7 glint
+
+Each pixel's class is what the ray through its centre meets first, as the renderer draws it
+(:mod:`scet_render.render.regions`); each row is classified at the eye pose of the strobe
+that lights it most, like the image (rows no strobe lights: the ambient instant that weighs
+most), and the glints of each strobe are painted over its rows where the labels put them
+(every pixel the glint's image, a disk of the light's paraxial virtual image in the cornea,
+overlaps). A fixation's frame is classified once when no band's pose moves anything by 0.05 px.
+Masks cost 1.4-3.2 % of a frame's render (320x240, 16 spp, after the first frame);
+``render_dataset(masks=False)`` (``scet render --no-masks``) leaves them out, and the manifest
+says which (``files.mask``). ``DatasetFrame.mask()`` reads one back.
+
+The pupil's size can vary over time (``render_dataset(pupil=PupilModel(...))``: the light
+reflex and hippus of :mod:`scet_render.motion.pupil`, seeded from the dataset's seed, recorded
+as the manifest's ``pupil``); without it every frame has the scene's size, as before.
 
 Labels are computed from the setup, the trajectory and the banding model
 (:func:`estimator.banding.band_layout`, :func:`scet_render.simulate.ground_truth_glints`), so
