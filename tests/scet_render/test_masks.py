@@ -273,3 +273,23 @@ def test_the_classifier_refracts_at_the_conic_cornea(small):
     assert _iou(pupil, want) > TOL.pupil_iou
     assert _iou(pupil, want) > _iou(pupil, sphere)
     assert np.isin(mask, [CLASSES.index(c) for c in ("iris", "sclera")]).any()
+
+
+def test_lids_and_lashes_have_their_classes_and_a_blink_covers_the_eye(small):
+    """Lids that follow the eye, with lashes (meshes inside shapegroups, moved by instances):
+    their own classes, and a shut lid leaves no iris, pupil or sclera in the mask."""
+    pytest.importorskip("mitsuba")
+    from estimator.scene import parse_scene
+    from scet_render.render import BandedRenderer, pose_mask
+
+    with open(load_scene("paper_sim").source, encoding="utf-8") as f:
+        text = f.read() + "\n[eyelids]\nlash_count = 60\n"
+    lids = dataclasses.replace(parse_scene(text), camera=small.camera, sensor=small.sensor)
+    renderer = BandedRenderer(lids, spp=1, seed=1)
+    counts = [np.bincount(pose_mask(renderer, 0.0, 0.0, closure=c).ravel(),
+                          minlength=len(CLASSES)) for c in (0.0, 0.5, 1.0)]
+    lid, lash = CLASSES.index("lid"), CLASSES.index("lash")
+    eye = [CLASSES.index(c) for c in ("sclera", "iris", "pupil")]
+    assert counts[0][lid] > 0 and counts[0][lash] > 0 and counts[0][eye].min() > 0
+    assert counts[1][lid] > counts[0][lid] and counts[1][eye].sum() < counts[0][eye].sum()
+    assert counts[2][eye].sum() == 0 and counts[2][lid] > counts[1][lid]
