@@ -39,6 +39,10 @@ EYE_SPEED_MAX_DEG_S = 600.0
 #: gkaModelEye's -0.454.
 ASPHERICITY_MIN = -1.0
 ASPHERICITY_MAX = 1.0
+#: Entrance pupil diameter the renders used before it was a scene key (m): 4 mm, mid-range of
+#: the 2-8 mm a human pupil spans from bright to dark adaptation (Watson & Yellott 2012,
+#: "A unified formula for light-adapted pupil size", J. Vision 12(10):12).
+PUPIL_DIAMETER_M = 4.0e-3
 
 
 def gaze_direction(yaw_rad, pitch_rad) -> np.ndarray:
@@ -81,13 +85,17 @@ class Eye:
     #: stays where the sphere's is; ``cornea_radius_m`` is the apex radius of curvature and
     #: :meth:`cornea_center` the apex's centre of curvature (the sphere's centre).
     cornea_asphericity: float = 0.0
+    #: Diameter of the pupil (the aperture in the iris, in the limbus plane), m. The renderer
+    #: draws it and the dataset labels its image through the cornea; a trajectory may vary it
+    #: over time (:mod:`scet_render.motion.pupil`), this is its value when none does.
+    pupil_diameter_m: float = PUPIL_DIAMETER_M
 
     def __post_init__(self):
         c = as_points(self.rotation_center_m, "rotation_center_m").reshape(3).copy()
         c.setflags(write=False)
         object.__setattr__(self, "rotation_center_m", c)
         for name in ("cornea_radius_m", "cornea_offset_m", "limbus_depth_m", "refractive_index",
-                     "cornea_asphericity"):
+                     "cornea_asphericity", "pupil_diameter_m"):
             object.__setattr__(self, name, float(getattr(self, name)))
         if not 0 < self.limbus_depth_m < 2 * self.cornea_radius_m:
             raise ValueError("limbus depth must lie between 0 and the corneal diameter")
@@ -100,6 +108,10 @@ class Eye:
             raise ValueError(f"limbus depth {self.limbus_depth_m} m must lie in front of the "
                              f"conic cornea's equator ({self.cornea_semi_axes_m[0]} m behind "
                              "the apex)")
+        d = self.pupil_diameter_m
+        if not (np.isfinite(d) and 0 < d < 2 * self.limbus_radius_m):
+            raise ValueError(f"pupil_diameter_m must be > 0 and smaller than the iris (the "
+                             f"limbus circle, {2 * self.limbus_radius_m} m across), got {d}")
 
     @classmethod
     def scaled(cls, rotation_center_m, cornea_radius_m: float, **kwargs) -> "Eye":

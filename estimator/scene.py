@@ -25,6 +25,7 @@ from .eye import (
     BOHME_CORNEA_OFFSET_M,
     BOHME_CORNEA_RADIUS_M,
     BOHME_LIMBUS_DEPTH_M,
+    PUPIL_DIAMETER_M,
     Eye,
 )
 from .eyelids import read_eyelids
@@ -261,8 +262,23 @@ def _read_eye(t: _Table) -> Eye:
     if q != 0 and limbus >= r_c / (1.0 + q):
         raise t.error("cornea_asphericity", f"the limbus ({limbus * 1e3:.3f} mm behind the apex) "
                       f"must lie in front of the conic's equator ({r_c / (1 + q) * 1e3:.3f} mm)")
+    pupil = _read_pupil(t, Eye(center, r_c, offset, limbus, n, q).limbus_radius_m)
     t.finish()
-    return Eye(center, r_c, offset, limbus, n, q)
+    return Eye(center, r_c, offset, limbus, n, q, pupil)
+
+
+def _read_pupil(t: _Table, limbus_radius_m: float) -> float:
+    """``pupil_diameter_mm`` (any length unit): > 0 and smaller than the iris, whose edge is the
+    limbus circle."""
+    d = t.quantity("pupil_diameter", "length", default=PUPIL_DIAMETER_M, required=False)
+    key = next((f"pupil_diameter_{u}" for u in UNITS["length"] if t.has(f"pupil_diameter_{u}")),
+               "pupil_diameter_mm")
+    if d <= 0:
+        raise t.error(key, f"expected a pupil diameter > 0, got {d * 1e3:g} mm")
+    if d >= 2 * limbus_radius_m:
+        raise t.error(key, f"the pupil ({d * 1e3:.3f} mm across) must be smaller than the iris "
+                           f"(the limbus circle, {2 * limbus_radius_m * 1e3:.3f} mm across)")
+    return d
 
 
 def _read_camera(t: _Table, eye: Eye) -> Camera:

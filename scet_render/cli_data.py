@@ -51,7 +51,8 @@ def cmd_render(args) -> int:
         raise ValueError("--frames is required (or --calibration PATTERN for calibration frames)")
     bar, update = progress_bar(args.frames, "frame", f"render {setup.name}")
     kwargs = dict(frames=args.frames, spp=args.spp, trajectory=args.trajectory, seed=args.seed,
-                  variant=args.variant, cornea=args.cornea, progress=update)
+                  variant=args.variant, cornea=args.cornea, progress=update,
+                  masks=not args.no_masks)
     try:
         if args.workers is not None or args.ray_address is not None:
             from .dataset import render_dataset_ray
@@ -155,6 +156,9 @@ def add_render_parser(sub, scene_help: str) -> None:
                                      "else scalar_rgb)")
     p.add_argument("--cornea", choices=("dielectric", "plain_dielectric", "conductor"),
                    default="dielectric")
+    p.add_argument("--no-masks", action="store_true",
+                   help="write no segmentation masks (frames/NNNNNN_mask.png; they cost ~2-3 %% "
+                        "of a frame's render)")
     p.add_argument("--raw", nargs="?", const="SGBRG10_CSI2P", metavar="FORMAT",
                    help="also write the frames as the OV5647 reads them out (SGBRG10_CSI2P, the "
                         "default, or SGBRG10), with capture.json, so they read as a capture")

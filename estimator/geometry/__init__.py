@@ -5,7 +5,9 @@ and the packed rows the cornea fits sum.
 Modules: ``rigid`` (poses, rotations, point checks), ``camera`` (:class:`Camera`),
 ``reflection`` (:func:`project_glints`, :func:`reflection_points`, :func:`reflect_pixel_rays`),
 ``conic`` (:func:`project_glints_conic`: exact reflections on an aspheric, conic cornea),
-``roots`` (the reflection equation's solvers), ``jacobians`` (:func:`glint_jacobians`),
+``refraction`` (:func:`project_through_cornea`: points behind the cornea as the camera sees
+them, refracted exactly by the sphere or the conic), ``roots`` (the reflection equation's
+solvers), ``jacobians`` (:func:`glint_jacobians`),
 ``fit_rows`` (the centre and orbit fits' packed rows), ``compiled`` (:func:`glints_one_pose`,
 :func:`glints_and_rows_one_pose`: the projection of one pose, and its d glint / d centre,
 compiled with Numba where it is).
@@ -16,6 +18,7 @@ from .conic import conic_reflection_points, conic_sag, project_glints_conic
 from .compiled import camera_arrays, glints_and_rows_one_pose, glints_one_pose
 from .jacobians import glint_jacobians, jacobian_terms, radius_rows
 from .reflection import project_glints, reflect_pixel_rays, reflection_points
+from .refraction import project_through_cornea, refraction_points, snell_residual_rad
 from .rigid import (
     RigidPose,
     as_points,
@@ -32,5 +35,6 @@ __all__ = [
     "project_glints", "reflect_pixel_rays", "as_points", "normalize", "rotation_matrix",
     "rotation_from_vector", "rotation_to_vector", "look_at_rotation", "RigidPose",
     "rotations_from_vectors", "glints_one_pose", "glints_and_rows_one_pose", "camera_arrays",
-    "project_glints_conic", "conic_reflection_points", "conic_sag"
+    "project_glints_conic", "conic_reflection_points", "conic_sag", "project_through_cornea",
+    "refraction_points", "snell_residual_rad"
 ]

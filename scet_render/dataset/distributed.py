@@ -39,7 +39,8 @@ class FrameRenderer:
         from .writer import dataset_trajectory, open_renderer
 
         self.plan = plan
-        self.trajectory = dataset_trajectory(plan.setup, plan.trajectory, plan.frames, plan.seed)
+        self.trajectory = dataset_trajectory(plan.setup, plan.trajectory, plan.frames, plan.seed,
+                                             plan.pupil)
         self.renderer, self.variant, self.settings, self.host = open_renderer(
             plan, threads=threads, vector_width=vector_width)
 
@@ -58,7 +59,7 @@ def render_dataset_ray(setup, out_dir, *, frames: int, workers: int | None = Non
                        address: str | None = None, cpus_per_worker: int = 1, spp: int = 16,
                        trajectory: str = "fixations", seed: int = 0, variant: str | None = None,
                        cornea: str = "dielectric", sensor=None, scene_text: str | None = None,
-                       eyelid_openness: float | None = 1.0,
+                       eyelid_openness: float | None = 1.0, masks: bool = True, pupil=None,
                        progress: Callable[[int, int], None] | None = None) -> RenderSummary:
     """:func:`~scet_render.dataset.render_dataset` with the frames rendered by Ray actors.
 
@@ -78,8 +79,9 @@ def render_dataset_ray(setup, out_dir, *, frames: int, workers: int | None = Non
 
     plan = prepare_dataset(setup, out_dir, frames=frames, spp=spp, trajectory=trajectory,
                            seed=seed, variant=variant, cornea=cornea, sensor=sensor,
-                           scene_text=scene_text, eyelid_openness=eyelid_openness)
-    traj = dataset_trajectory(setup, plan.trajectory, plan.frames, plan.seed)
+                           scene_text=scene_text, eyelid_openness=eyelid_openness,
+                           masks=masks, pupil=pupil)
+    traj = dataset_trajectory(setup, plan.trajectory, plan.frames, plan.seed, plan.pupil)
     if progress is not None:
         progress(len(plan.done), plan.frames)
     if not plan.todo and plan.existing is not None:

@@ -67,7 +67,8 @@ class EffectiveScene(NamedTuple):
 #: Setup fields added after datasets were first written, with the value that reproduces the
 #: older setups: a field at that value is left out of the fingerprint, so that datasets
 #: rendered before it existed (byte-identical frames) still resume and compare equal.
-_LATER_FIELDS = {("Eye", "cornea_asphericity"): 0.0, ("Setup", "eyelids"): None}
+_LATER_FIELDS = {("Eye", "cornea_asphericity"): 0.0, ("Setup", "eyelids"): None,
+                 ("Eye", "pupil_diameter_m"): 4.0e-3}
 
 
 def _at_older_value(obj, name: str) -> bool:
@@ -232,7 +233,8 @@ def effective_scene_text(setup: Setup, text: str) -> EffectiveScene:
                 "cornea_offset_m": ("cornea_offset_m", "cornea_offset"),
                 "limbus_depth_m": ("limbus_depth_m", "limbus_depth"),
                 "refractive_index": ("refractive_index", "refractive_index"),
-                "cornea_asphericity": ("cornea_asphericity", "cornea_asphericity")},
+                "cornea_asphericity": ("cornea_asphericity", "cornea_asphericity"),
+                "pupil_diameter_m": ("pupil_diameter_m", "pupil_diameter")},
     }
     for table, keys in tables.items():
         if table in rewritable:

@@ -35,6 +35,27 @@ _STREAM_TRAJECTORY = 0
 _STREAM_RENDER = 1
 _STREAM_SENSOR = 2
 _STREAM_BLINKS = 3
+_STREAM_PUPIL = 4
+
+#: Suffix of a frame's segmentation mask beside its EXR and PNG: ``frames/NNNNNN_mask.png``
+#: (uint8 indices into :data:`scet_render.render.MASK_CLASSES`).
+MASK_SUFFIX = "_mask"
+
+
+def mask_name(frame: int) -> str:
+    """``NNNNNN_mask.png``: the file name of frame ``frame``'s segmentation mask."""
+    return f"{int(frame):06d}{MASK_SUFFIX}.png"
+
+
+def mask_png(mask) -> bytes:
+    """PNG bytes of an (H, W) uint8 mask, compression :data:`PNG_COMPRESSION`."""
+    import cv2
+
+    ok, png = cv2.imencode(".png", np.asarray(mask, dtype=np.uint8),
+                           [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
+    if not ok:
+        raise RuntimeError("OpenCV could not encode a mask as PNG")
+    return png.tobytes()
 
 
 class DatasetError(InputError):
@@ -89,6 +110,15 @@ class StrobeLabel:
         scenes without moving lids (and every label written before they existed).
     glints_blocked_fraction : (n,) float, optional
         Fraction of each glint's light paths blocked: 1 hidden, in (0, 1) cut.
+    pupil_center_px : (2,) float, optional
+        The pupil's centre as imaged through the cornea (NaN where its ray does not reach the
+        camera through the cap); None for datasets written before pupil labels existed.
+    pupil_ellipse_px : (5,) float, optional
+        ``[u, v, major, minor, angle_deg]``: the ellipse of the refracted pupil edge (full axis
+        lengths, px; the major axis's angle from +u toward +v); NaN where part of the edge is
+        not seen; None for older datasets.
+    pupil_diameter_mm : float, optional
+        The pupil's diameter at the strobe instant; None for older datasets.
     """
 
     frame: int
@@ -107,6 +137,9 @@ class StrobeLabel:
     lid_closure: float = 0.0
     glints_occluder: tuple | None = None
     glints_blocked_fraction: np.ndarray | None = None
+    pupil_center_px: np.ndarray | None = None
+    pupil_ellipse_px: np.ndarray | None = None
+    pupil_diameter_mm: float | None = None
 
 
 def _exr():

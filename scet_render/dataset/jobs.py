@@ -25,11 +25,14 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from estimator.errors import TrackerInputError
 from estimator.formats import atomic_write, frame_name, remove_partials
 from estimator.inputs import read_frame
 from estimator.setup import Setup
 
+from ..motion import PupilModel
 from ..render import SceneOptions, SensorModel
 from .format import (
     FRAMES_DIR,
@@ -39,6 +42,7 @@ from .format import (
     RenderSummary,
     _check_int,
     _check_kind,
+    mask_name,
 )
 from .labels import frame_labels, read_exr
 from .manifest import _compare_manifests, _manifest, _manifest_bytes, _prepare_folder, _scene_text
@@ -81,6 +85,11 @@ class DatasetPlan:
     #: The renderer's eyelids (:class:`scet_render.render.SceneOptions`; None: none). Recorded
     #: in the manifest with the renderer's settings (``render.renderer.scene_options``).
     eyelid_openness: float | None = 1.0
+    #: Write ``frames/NNNNNN_mask.png`` beside each frame (``files.mask`` in the manifest).
+    masks: bool = True
+    #: The pupil's dynamics (light reflex, hippus) the trajectory carries; None: the scene's
+    #: pupil size throughout. Recorded in the manifest (``pupil``) when set.
+    pupil: PupilModel | None = None
 
     @property
     def frames_dir(self) -> Path:
@@ -97,11 +106,15 @@ class DatasetPlan:
         return int(llvm["vector_width"]) if isinstance(llvm, dict) and "vector_width" in llvm else None
 
 
-def frame_intact(frames_dir: Path, frame: int, scene_sha256: str, shape) -> bool:
+def frame_intact(frames_dir: Path, frame: int, scene_sha256: str, shape, *,
+                 masks: bool = False) -> bool:
     """Whether frame ``frame`` is complete and intact: its EXR reads with this frame's index
-    and scene, and its PNG decodes to ``shape`` (height, width)."""
+    and scene, and its PNG (and with ``masks`` its mask PNG) decodes to ``shape`` (height,
+    width)."""
     exr, png = frames_dir / frame_name(frame, "exr"), frames_dir / frame_name(frame, "png")
     if not (exr.is_file() and png.is_file()):
+        return False
+    if masks and not _mask_intact(frames_dir / mask_name(frame), shape):
         return False
     size = (int(shape[1]), int(shape[0]))
     try:  # both refused by their headers before decoding when of another size
@@ -113,11 +126,22 @@ def frame_intact(frames_dir: Path, frame: int, scene_sha256: str, shape) -> bool
             and e.radiance.shape == tuple(shape) and img.shape == tuple(shape))
 
 
+def _mask_intact(path: Path, shape) -> bool:
+    import cv2
+
+    if not path.is_file():
+        return False
+    data = np.frombuffer(path.read_bytes(), dtype=np.uint8)
+    img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+    return img is not None and img.dtype == np.uint8 and img.shape == tuple(shape)
+
+
 def prepare_dataset(setup: Setup, out_dir, *, frames: int, spp: int = 16,
                     trajectory: str = "fixations", seed: int = 0, variant: str | None = None,
                     cornea: str = "dielectric", sensor: SensorModel | None = None,
                     scene_text: str | None = None,
-                    eyelid_openness: float | None = 1.0) -> DatasetPlan:
+                    eyelid_openness: float | None = 1.0, masks: bool = True,
+                    pupil: PupilModel | None = None) -> DatasetPlan:
     """Step 1 (module docstring); the arguments as :func:`~scet_render.dataset.render_dataset`.
 
     Raises
@@ -134,6 +158,10 @@ def prepare_dataset(setup: Setup, out_dir, *, frames: int, spp: int = 16,
     if variant is not None and not isinstance(variant, str):
         raise ValueError(f"variant must be a string or None, got {variant!r}")
     SceneOptions(eyelid_openness=eyelid_openness)  # checks it (ValueError) before any work
+    if not isinstance(masks, bool):
+        raise ValueError(f"masks must be True or False, got {masks!r}")
+    if pupil is not None and not isinstance(pupil, PupilModel):
+        raise ValueError(f"pupil must be a PupilModel or None, got {type(pupil).__name__}")
     if eyelid_openness is None and setup.eyelids is not None:
         # No lids rendered: none in the labels either (nothing hides a glint).
         setup = dataclasses.replace(setup, eyelids=None)
@@ -144,6 +172,11 @@ def prepare_dataset(setup: Setup, out_dir, *, frames: int, spp: int = 16,
     out = Path(out_dir)
     manifest = _manifest(setup, text, frames=frames, spp=spp, kind=kind, seed=seed,
                          variant=variant, cornea=cornea, sensor=sensor)
+    if masks:
+        manifest["files"]["mask"] = f"{FRAMES_DIR}/{{frame:06d}}_mask.png"
+    if pupil is not None:
+        # As JSON reads it back (tuples become lists), so that a resume compares equal.
+        manifest["pupil"] = json.loads(json.dumps(dataclasses.asdict(pupil)))
     existing = _prepare_folder(out)
     if existing is not None:
         # The variant that None resolves to is known only once the renderer exists.
@@ -151,10 +184,12 @@ def prepare_dataset(setup: Setup, out_dir, *, frames: int, spp: int = 16,
                            ignore_variant=variant is None)
     shape = (setup.camera.height_px, setup.camera.width_px)
     sha = manifest["scene"]["sha256"]
-    done = [f for f in range(frames) if frame_intact(out / FRAMES_DIR, f, sha, shape)]
+    done = [f for f in range(frames)
+            if frame_intact(out / FRAMES_DIR, f, sha, shape, masks=masks)]
     todo = sorted(set(range(frames)) - set(done))
     return DatasetPlan(setup, out, manifest, existing, todo, done, frames, spp, seed, kind,
-                       cornea, variant, sensor, eyelid_openness=eyelid_openness)
+                       cornea, variant, sensor, eyelid_openness=eyelid_openness, masks=masks,
+                       pupil=pupil)
 
 
 def commit_manifest(plan: DatasetPlan, variant: str, renderer_settings: dict,

@@ -18,7 +18,7 @@ from estimator.inputs import MAX_FRAMES, MAX_FRAME_PX
 from estimator.setup import Setup
 
 from ..motion import Trajectory
-from ..render import OCCLUDER_NAMES, occluder_names
+from ..render import OCCLUDER_NAMES, occluder_names, pupil_image
 from ..simulate import ground_truth_glints
 from .format import FORMAT, LABELS_NAME, VERSION, DatasetError, StrobeLabel, _floats
 from .manifest import read_manifest
@@ -58,6 +58,8 @@ def frame_labels(setup: Setup, trajectory: Trajectory, frame: int, bands=None) -
     yaw, pitch = trajectory.angles_at(time_s)
     target = trajectory.target_at(time_s)
     glints, visible, center = ground_truth_glints(setup, yaw, pitch)
+    pupil = pupil_image(setup, yaw, pitch,
+                        trajectory.pupil_diameter_at(time_s, setup.eye.pupil_diameter_m))
     lids = None
     if setup.eyelids is not None:
         closure = trajectory.lid_closure_at(time_s)
@@ -80,6 +82,11 @@ def frame_labels(setup: Setup, trajectory: Trajectory, frame: int, bands=None) -
             "cornea_center_m": _floats(center[i]),
             "glints_px": [_floats(g) if np.all(np.isfinite(g)) else None for g in glints[i]],
             "glints_visible": [bool(v) for v in visible[i]],
+            "pupil_center_px": (_floats(pupil.center_px[i]) if pupil.center_visible[i]
+                                else None),
+            "pupil_ellipse_px": (_floats(pupil.ellipse_px[i])
+                                 if np.all(np.isfinite(pupil.ellipse_px[i])) else None),
+            "pupil_diameter_mm": float(pupil.diameter_m[i] * 1e3),
         })
         if lids is not None:
             out[-1].update({
@@ -223,7 +230,20 @@ def _label(d: Doc) -> StrobeLabel:
         yaw_rad=d.number("yaw_rad", lo=-math.pi, hi=math.pi),
         pitch_rad=d.number("pitch_rad", lo=-math.pi, hi=math.pi),
         cornea_center_m=d.array("cornea_center_m", (3,), lo=-_POSITION_M, hi=_POSITION_M),
-        glints_px=glints, glints_visible=visible, **_lid_fields(d, glints.shape[0]))
+        glints_px=glints, glints_visible=visible, **_lid_fields(d, glints.shape[0]),
+        **_pupil_fields(d))
+
+
+def _pupil_fields(d: Doc) -> dict:
+    """The pupil fields of a label (absent from datasets written before they existed)."""
+    if not d.has("pupil_diameter_mm"):
+        return {}
+    out = {"pupil_diameter_mm": d.number("pupil_diameter_mm", lo=0.0, hi=100.0)}
+    for name, n in (("pupil_center_px", 2), ("pupil_ellipse_px", 5)):
+        # null: not seen (its ray misses the cap, or part of the edge is hidden).
+        out[name] = (np.full(n, np.nan) if d.data.get(name, 0) is None
+                     else d.array(name, (n,), lo=-_PIXEL, hi=_PIXEL))
+    return out
 
 
 def _lid_fields(d: Doc, n: int) -> dict:

@@ -11,6 +11,8 @@ sweeping lighting designs). Nothing is decoded until asked for::
         for label in frame.labels:         # one StrobeLabel per lit band
             rows = slice(*label.full_rows) # rows that collect the whole pulse
             glints = label.glints_px[label.glints_visible]   # ground-truth (u, v) of the band
+            pupil = label.pupil_center_px  # the pupil's centre as imaged through the cornea
+        mask = frame.mask()                # (H, W) uint8 classes, scet_render.render.MASK_CLASSES
 
     # A training loop over batches of (image, target) pairs:
     batch = [(f.counts() / 1023.0, f.labels) for f in ds[0:8]]
@@ -31,7 +33,7 @@ from estimator.errors import TrackerInputError
 from estimator.formats import frame_name
 from estimator.inputs import MAX_MISSING_FRAMES, read_frame
 
-from .format import FRAMES_DIR, LABELS_NAME, DatasetError
+from .format import FRAMES_DIR, LABELS_NAME, MASK_SUFFIX, DatasetError, mask_name
 from .jobs import frame_intact
 from .labels import iter_labels, read_exr
 from .manifest import read_manifest
@@ -59,6 +61,31 @@ class DatasetFrame:
         """(H, W) float32 linear radiance from the EXR, as rendered."""
         return read_exr(self.folder / FRAMES_DIR / frame_name(self.index, "exr"),
                         self.size_px).radiance
+
+    def mask(self) -> np.ndarray:
+        """(H, W) uint8 segmentation mask (indices into
+        :data:`scet_render.render.MASK_CLASSES`) from ``frames/NNNNNN_mask.png``.
+
+        Raises
+        ------
+        DatasetError
+            No mask (a dataset rendered without masks, or before they existed), or not one of
+            the manifest's size.
+        """
+        import cv2
+
+        path = self.folder / FRAMES_DIR / mask_name(self.index)
+        try:
+            data = np.frombuffer(path.read_bytes(), dtype=np.uint8)
+        except OSError as exc:
+            raise DatasetError(f"{path}: no segmentation mask ({exc.strerror or exc}); render "
+                               "the dataset with masks") from None
+        img = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
+        want = None if self.size_px is None else (self.size_px[1], self.size_px[0])
+        if img is None or img.dtype != np.uint8 or img.ndim != 2 or (want and img.shape != want):
+            raise DatasetError(f"{path}: not an 8-bit one-channel PNG"
+                               + (f" of {want[1]}x{want[0]} px" if want else ""))
+        return img
 
 
 class Dataset:
@@ -108,7 +135,8 @@ def _unbacked(folder: Path, frames: int) -> str | None:
     frames_dir = folder / FRAMES_DIR
     try:
         with os.scandir(frames_dir) as it:
-            held = sum(1 for e in it if e.name.endswith(".png"))
+            held = sum(1 for e in it if e.name.endswith(".png")
+                       and not e.name.endswith(MASK_SUFFIX + ".png"))
     except OSError:
         held = 0
     if frames - held > MAX_MISSING_FRAMES:
@@ -145,18 +173,21 @@ def verify_dataset(folder) -> list[str]:
         frames = int(manifest["frames"])
         shape = (int(manifest["image"]["height_px"]), int(manifest["image"]["width_px"]))
         sha = str(manifest["scene"]["sha256"])
-    except (KeyError, TypeError, ValueError) as exc:
+        masks = "mask" in manifest.get("files", {})
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
         return [f"{folder}/manifest.json: malformed ({exc!r})"]
     frames_dir = folder / FRAMES_DIR
     unbacked = _unbacked(folder, frames)
     if unbacked:  # a count the folder does not back is reported, not iterated
         return [unbacked]
-    bad = [f for f in range(frames) if not frame_intact(frames_dir, f, sha, shape)]
+    bad = [f for f in range(frames)
+           if not frame_intact(frames_dir, f, sha, shape, masks=masks)]
     if bad:
         problems.append(f"{frames_dir}: {len(bad)} of {frames} frames missing or damaged "
                         f"(first: {bad[:5]}); rerun `scet render` with the dataset's arguments")
     if frames_dir.is_dir():
         known = {frame_name(f, e) for f in range(frames) for e in ("exr", "png", "raw")}
+        known |= {mask_name(f) for f in range(frames)} if masks else set()
         extra = sorted(p.name for p in frames_dir.iterdir() if p.name not in known)
         if extra:
             problems.append(f"{frames_dir}: {len(extra)} files the manifest does not name "

@@ -6,6 +6,7 @@ Layout of a dataset folder (format ``scet-dataset``, version 1)::
     frames/000000.exr    linear radiance, float32, one channel "Y" (pulse-weighted, as rendered)
     frames/000000.png    sensor output (raw DN, black level included): 16-bit PNG for bit
                          depths above 8, 8-bit PNG otherwise
+    frames/000000_mask.png  segmentation mask, 8-bit (unless rendered with masks=False)
     ...
     labels.jsonl         one JSON object per strobe sample; written last
 
@@ -37,6 +38,43 @@ pulse order::
     glints_px              per light, the ground-truth glint pixel [u, v] (OpenCV pixel-centre
                            convention), or null where the reflection does not exist
     glints_visible         per light, whether the glint is on the corneal cap and seen
+    pupil_center_px        the pupil's centre as imaged through the cornea [u, v]: the
+                           projection of the point where the ray from the centre refracts
+                           toward the camera (exact, on the sphere or the conic cornea;
+                           :mod:`scet_render.render.pupil`); null where that ray misses the cap
+    pupil_ellipse_px       [u, v, major, minor, angle_deg]: cv2.fitEllipse of 64 refracted
+                           points of the pupil's edge (full axis lengths, px; the major axis's
+                           angle from +u toward +v, [0, 180)); null where any is not seen
+    pupil_diameter_mm      the pupil's diameter at the strobe instant (the scene's
+                           eye.pupil_diameter_mm, or the trajectory's pupil trace)
+
+Datasets written before the pupil labels existed lack the three pupil keys (their
+:class:`StrobeLabel` fields read None); the format version stays 1. The ellipse's centre is
+not the centre's image: perspective and the cornea's uneven magnification put them 1-2 px
+apart at 320x240 on paper_sim (``benchmarks/bench_pupil_labels.py``); a detector that fits
+the pupil's outline measures the ellipse.
+
+Segmentation masks (``frames/NNNNNN_mask.png``, one uint8 class per pixel, the index into
+:data:`scet_render.render.MASK_CLASSES`)::
+
+    0 none     nothing of the eye or face (a light seen directly, the environment)
+    1 skin     the skin around the eye and the face beyond it
+    2 sclera   3 iris   4 pupil  (iris and pupil seen through the cornea, refracted)
+    5 lid      6 lash   7 glint
+
+Each pixel's class is what the ray through its centre meets first, as the renderer draws it
+(:mod:`scet_render.render.regions`); each row is classified at the eye pose of the strobe
+that lights it most, like the image (rows no strobe lights: the ambient instant that weighs
+most), and the glints of each strobe are painted over its rows where the labels put them
+(every pixel the glint's image, a disk of the light's paraxial virtual image in the cornea,
+overlaps). A fixation's frame is classified once when no band's pose moves anything by 0.05 px.
+Masks cost 1.4-3.2 % of a frame's render (320x240, 16 spp, after the first frame);
+``render_dataset(masks=False)`` (``scet render --no-masks``) leaves them out, and the manifest
+says which (``files.mask``). ``DatasetFrame.mask()`` reads one back.
+
+The pupil's size can vary over time (``render_dataset(pupil=PupilModel(...))``: the light
+reflex and hippus of :mod:`scet_render.motion.pupil`, seeded from the dataset's seed, recorded
+as the manifest's ``pupil``); without it every frame has the scene's size, as before.
 
 Labels are computed from the setup, the trajectory and the banding model
 (:func:`estimator.banding.band_layout`, :func:`scet_render.simulate.ground_truth_glints`), so
@@ -69,15 +107,19 @@ from estimator.setup import Setup
 
 from ..motion import (
     FixationalNoise,
+    PupilModel,
     Trajectory,
     blink_schedule,
     fixation_sequence,
+    pupil_schedule,
     saccade_sequence,
     with_blinks,
+    with_pupil,
 )
 from ..render import SensorModel
 from .format import (
     _STREAM_BLINKS,
+    _STREAM_PUPIL,
     _STREAM_RENDER,
     _STREAM_SENSOR,
     _STREAM_TRAJECTORY,
@@ -94,6 +136,8 @@ from .format import (
     _check_kind,
     _exr,
     counts_png,
+    mask_name,
+    mask_png,
 )
 from .jobs import DatasetPlan, commit_manifest, finalize_dataset, prepare_dataset
 from .labels import frame_labels, visible_bands
@@ -101,7 +145,8 @@ from .labels import frame_labels, visible_bands
 # --------------------------------------------------------------------------- trajectories
 
 
-def dataset_trajectory(setup: Setup, kind: str, frames: int, seed: int) -> Trajectory:
+def dataset_trajectory(setup: Setup, kind: str, frames: int, seed: int,
+                       pupil: PupilModel | None = None) -> Trajectory:
     """The eye motion of a dataset: seeded, on the setup's screen, covering every frame.
 
     Parameters
@@ -116,6 +161,9 @@ def dataset_trajectory(setup: Setup, kind: str, frames: int, seed: int) -> Traje
     frames : int
         Frames to cover: the trajectory lasts at least (frames + 1) Δt.
     seed : int
+    pupil : PupilModel, optional
+        The pupil's dynamics: a seeded :func:`~scet_render.motion.pupil_schedule` from the
+        scene's pupil size (its own random stream). None: the scene's size throughout.
 
     Returns
     -------
@@ -146,6 +194,10 @@ def dataset_trajectory(setup: Setup, kind: str, frames: int, seed: int) -> Traje
         blinks = np.random.default_rng(np.random.SeedSequence([seed, _STREAM_BLINKS]))
         traj = with_blinks(traj, blink_schedule(traj.duration_s,
                                                 setup.eyelids.blink_rate_per_min, blinks))
+    if pupil is not None:
+        gen = np.random.default_rng(np.random.SeedSequence([seed, _STREAM_PUPIL]))
+        traj = with_pupil(traj, pupil_schedule(traj.duration_s, setup.eye.pupil_diameter_m,
+                                               gen, pupil))
     return traj
 
 
@@ -166,6 +218,8 @@ def render_dataset(
     scene_text: str | None = None,
     progress: Callable[[int, int], None] | None = None,
     eyelid_openness: float | None = 1.0,
+    masks: bool = True,
+    pupil: PupilModel | None = None,
 ) -> RenderSummary:
     """Render a banded-frame dataset (or finish an interrupted one) into ``out_dir``.
 
@@ -199,6 +253,11 @@ def render_dataset(
     eyelid_openness : float or None
         The renderer's static eyelids: 1 clears the cornea for every gaze at the screen, 0 is
         closed, None renders no lids (:class:`scet_render.render.BandedRenderer`).
+    masks : bool
+        Write each frame's segmentation mask, ``frames/NNNNNN_mask.png``
+        (:func:`scet_render.render.regions.frame_mask`).
+    pupil : PupilModel, optional
+        Vary the pupil's size over time (:func:`dataset_trajectory`); None keeps the scene's.
 
     Returns
     -------
@@ -224,8 +283,9 @@ def render_dataset(
     """
     plan = prepare_dataset(setup, out_dir, frames=frames, spp=spp, trajectory=trajectory,
                            seed=seed, variant=variant, cornea=cornea, sensor=sensor,
-                           scene_text=scene_text, eyelid_openness=eyelid_openness)
-    traj = dataset_trajectory(setup, plan.trajectory, plan.frames, plan.seed)
+                           scene_text=scene_text, eyelid_openness=eyelid_openness,
+                           masks=masks, pupil=pupil)
+    traj = dataset_trajectory(setup, plan.trajectory, plan.frames, plan.seed, plan.pupil)
     renderer = None
     if plan.todo or plan.existing is None:
         renderer = make_renderer(plan)
@@ -290,12 +350,14 @@ def render_frame(plan: DatasetPlan, renderer, trajectory: Trajectory, frame: int
     (idempotent: the same bytes whoever writes it, never a half file); its labels. The
     manifest must be committed first (by this process or the driver)."""
     return _render_frame(renderer, plan.setup, plan.sensor, trajectory, frame, plan.seed,
-                         plan.frames_dir, plan.scene_sha256)
+                         plan.frames_dir, plan.scene_sha256, plan.masks)
 
 
 def _render_frame(renderer, setup: Setup, sensor: SensorModel, traj: Trajectory, frame: int,
-                  seed: int, frames_dir: Path, scene_sha256: str) -> list[dict]:
-    """Render, check and write one frame; its labels, from the bands it was checked against."""
+                  seed: int, frames_dir: Path, scene_sha256: str,
+                  masks: bool = False) -> list[dict]:
+    """Render, check and write one frame (and its mask); its labels, from the bands it was
+    checked against."""
 
     result = renderer.render_frame(traj, frame)
     radiance = np.ascontiguousarray(result.radiance, dtype=np.float32)
@@ -330,8 +392,14 @@ def _render_frame(renderer, setup: Setup, sensor: SensorModel, traj: Trajectory,
     with atomic_file(frames_dir / frame_name(frame, "exr")) as tmp:
         with _exr().File(header, {"Y": radiance}) as exr:
             exr.write(str(tmp))
+    labels = frame_labels(setup, traj, frame, bands)
+    if masks:
+        from ..render import frame_mask
+
+        atomic_write(frames_dir / mask_name(frame), mask_png(frame_mask(renderer, traj, frame,
+                                                                         labels)))
     atomic_write(frames_dir / frame_name(frame, "png"), counts_png(dn, sensor.bit_depth))
-    return frame_labels(setup, traj, frame, bands)
+    return labels
 
 
 def _make_renderer(setup: Setup, *, spp: int, variant, cornea: str, seed: int,

@@ -50,6 +50,7 @@ import numpy as np
 from estimator.eye import fick_angles, gaze_direction
 
 from .blinks import Blinks
+from .pupil import PupilTrace
 
 #: Two gaze directions closer than this are the same: no saccade is inserted between them.
 SAME_DIRECTION_RAD = 1e-9
@@ -100,6 +101,9 @@ class Trajectory:
     blinks : Blinks, optional
         Blinks of the upper lid over the same time axis (:mod:`scet_render.motion.blinks`);
         None: the lids never blink. :func:`with_blinks` adds them to a trajectory.
+    pupil : PupilTrace, optional
+        The pupil's size over the same time axis (:mod:`scet_render.motion.pupil`); None:
+        the scene's size throughout. :func:`with_pupil` adds it.
     """
 
     kind: np.ndarray
@@ -116,6 +120,7 @@ class Trajectory:
     noise_phase_rad: np.ndarray | None = None
     start_s: np.ndarray = field(init=False, repr=False)
     blinks: Blinks | None = None
+    pupil: PupilTrace | None = None
 
     def __post_init__(self):
         kind = np.asarray(self.kind)
@@ -213,6 +218,14 @@ class Trajectory:
         t = np.clip(np.asarray(t_s, dtype=np.float64), 0.0, self.duration_s)
         return np.zeros(t.shape) if self.blinks is None else self.blinks.closure_at(t)
 
+    def pupil_diameter_at(self, t_s, default_m: float) -> np.ndarray:
+        """(...) pupil diameter (m) at times ``t_s``: the ``pupil`` trace's, or ``default_m``
+        (the scene's ``eye.pupil_diameter_m``) where the trajectory has none."""
+        t = np.clip(np.asarray(t_s, dtype=np.float64), 0.0, self.duration_s)
+        if self.pupil is None:
+            return np.full(t.shape, float(default_m))
+        return self.pupil.diameter_at(t)
+
     def direction_at(self, t_s) -> np.ndarray:
         """(..., 3) unit gaze directions (optical axis, world frame) at times ``t_s``."""
         return gaze_direction(*self.angles_at(t_s))
@@ -292,6 +305,11 @@ class Trajectory:
 def with_blinks(trajectory: Trajectory, blinks: Blinks | None) -> Trajectory:
     """The trajectory with the upper lid blinking as ``blinks`` says (None: no blinks)."""
     return dataclasses.replace(trajectory, blinks=blinks)
+
+
+def with_pupil(trajectory: Trajectory, pupil: PupilTrace | None) -> Trajectory:
+    """The trajectory with the pupil's size following ``pupil`` (None: the scene's size)."""
+    return dataclasses.replace(trajectory, pupil=pupil)
 
 
 # -- profile ---------------------------------------------------------------------------------

@@ -1,7 +1,8 @@
 """Physically based renders with Mitsuba 3: the variant (``backend``), the eye scene
 (``scene``, ``meshes``, ``export``), lids that follow the eye and their occlusion of glints
 (``lids``, ``occlusion``), the rolling-shutter strobe renderer (``rolling_shutter``),
-which part of the eye each pixel sees (``regions``)
+which part of the eye each pixel sees (``regions``), the pupil's image through the cornea
+(``pupil``)
 and the OV5647 sensor model (``sensor``). Mitsuba is imported lazily.
 """
 
@@ -39,6 +40,7 @@ from .layout import (
     EyeLayout,
     SceneOptions,
     eye_layout,
+    pupil_radius,
 )
 from .lids import (
     CLOSED_OVERLAP_RAD,
@@ -53,7 +55,17 @@ from .lids import (
 )
 from .meshes import cornea_mesh, cornea_opacity, eye_part_transforms, eyelid_meshes, sclera_opacity, skin_mesh
 from .occlusion import OCCLUDER_NAMES, SPOT_SAMPLES, GlintOcclusion, LidOccluder, occluder_names
-from .regions import REGIONS, region_labels
+from .pupil import BOUNDARY_POINTS, PupilImage, fit_ellipse_px, pupil_image, pupil_points
+from .regions import (
+    MASK_CLASSES,
+    REGIONS,
+    classify_rays,
+    frame_mask,
+    glint_radius_px,
+    paint_glints,
+    pose_mask,
+    region_labels,
+)
 from .rolling_shutter import (
     SPEED_SAMPLES_PER_PERIOD,
     BandedRenderer,
@@ -79,7 +91,8 @@ from .sensor import (
 )
 
 __all__ = [
-    "REGIONS", "region_labels",
+    "REGIONS", "region_labels", "MASK_CLASSES", "classify_rays", "frame_mask",
+    "glint_radius_px", "paint_glints", "pose_mask",
     "LLVM_MIN_VERSION", "SUPPORTED_VARIANTS", "VARIANT_ENV", "LLVM_ENV", "DEFAULT_LLVM_GLOBS",
     "VariantChoice", "BackendUnavailableError", "llvm_version", "find_libllvm", "gpu_available", "choose_variant",
     "activate", "is_jit_variant", "export_mitsuba", "DEFAULT_LIGHT_RADIANCE",
@@ -96,5 +109,6 @@ __all__ = [
     "DEFAULT_ELECTRONS_PER_RADIANCE", "SensorModel", "UPPER_LID_GAP_M", "CLOSED_OVERLAP_RAD",
     "LASH_ALBEDO", "LID_MOVING_KEYS", "moving_lid_meshes", "lash_mesh", "lid_rotations_rad",
     "lid_transforms", "lid_transforms_m", "OCCLUDER_NAMES", "SPOT_SAMPLES", "GlintOcclusion",
-    "LidOccluder", "occluder_names", "mitsuba_mesh"
+    "LidOccluder", "occluder_names", "mitsuba_mesh", "pupil_radius", "BOUNDARY_POINTS",
+    "PupilImage", "fit_ellipse_px", "pupil_image", "pupil_points"
 ]

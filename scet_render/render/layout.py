@@ -63,6 +63,8 @@ class SceneOptions:
 
     ``eyelid_openness`` sets the static lids; a Setup with ``eyelids`` (the scene's
     ``[eyelids]`` table) gets lids that follow the eye instead, unless it is None (no lids).
+    ``pupil_radius_m`` overrides the scene's pupil (``eye.pupil_diameter_mm``, half of it);
+    None takes the scene's (:func:`pupil_radius`).
     """
 
     cornea: str = "dielectric"
@@ -71,7 +73,7 @@ class SceneOptions:
     light_radiance: float = DEFAULT_LIGHT_RADIANCE
     ambient_radiance: float = DEFAULT_AMBIENT_RADIANCE
     channels: str = "split"
-    pupil_radius_m: float = 2.0e-3
+    pupil_radius_m: float | None = None
     sclera_albedo: float = 0.7
     iris_albedo: float = 0.3
     pupil_albedo: float = 0.02
@@ -102,8 +104,19 @@ class SceneOptions:
         for name in ("sclera_albedo", "iris_albedo", "pupil_albedo", "skin_albedo"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must lie in [0, 1], got {getattr(self, name)!r}")
-        if not (self.pupil_radius_m > 0 and self.cornea_edge_m > 0 and self.max_depth >= 2):
+        r_p = 1.0 if self.pupil_radius_m is None else self.pupil_radius_m
+        if not (r_p > 0 and math.isfinite(r_p) and self.cornea_edge_m > 0
+                and self.max_depth >= 2):
             raise ValueError("pupil_radius_m and cornea_edge_m must be > 0 and max_depth >= 2")
+
+
+def pupil_radius(setup: Setup, options: SceneOptions) -> float:
+    """The rendered pupil's radius (m): ``options.pupil_radius_m``, else half the scene's
+    ``eye.pupil_diameter_m`` (4 mm unless the scene says otherwise: the renders before it was
+    a scene key)."""
+    if options.pupil_radius_m is not None:
+        return float(options.pupil_radius_m)
+    return 0.5 * setup.eye.pupil_diameter_m
 
 
 @dataclass(frozen=True, slots=True)

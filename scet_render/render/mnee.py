@@ -69,7 +69,7 @@ CONVERGED_CM = 1e-6
 # --------------------------------------------------------------------------- pose state
 
 
-def pose_state(setup, layout, cornea_to_scene: np.ndarray, yaw_rad: float, pitch_rad: float):
+def pose_state(setup, layout, cornea_to_scene, yaw_rad, pitch_rad, pupil_radius_m=None):
     """Plain numpy description of the eye at a pose, in scene units (cm).
 
     Parameters
@@ -78,14 +78,15 @@ def pose_state(setup, layout, cornea_to_scene: np.ndarray, yaw_rad: float, pitch
     layout : EyeLayout
     cornea_to_scene : (4, 4) float
         The cornea's object-to-scene matrix (unit sphere -> corneal sphere or ellipsoid).
-    yaw_rad, pitch_rad : float
+    yaw_rad, pitch_rad, pupil_radius_m : float
+        The pose, and the pupil's radius (m; None: the scene's, ``setup.eye``).
 
     Returns
     -------
     dict of str -> ndarray
         ``minv`` (3, 3) and ``tinv`` (3,): scene -> unit-sphere space of the cornea;
         ``center`` (3,) rotation centre, ``gaze`` (3,) unit gaze; ``limbus`` the limbus plane's
-        distance along the gaze from the centre; ``sclera`` the sclera's radius.
+        distance along the gaze from the centre; ``sclera``, ``pupil`` the two radii.
     """
     from estimator.eye import eye_rotation_matrix
 
@@ -97,6 +98,8 @@ def pose_state(setup, layout, cornea_to_scene: np.ndarray, yaw_rad: float, pitch
         "center": setup.eye.rotation_center_m * SCENE_UNITS_PER_M, "gaze": gaze,
         "limbus": np.float64(layout.limbus_plane_m * SCENE_UNITS_PER_M),
         "sclera": np.float64(layout.sclera_radius_m * SCENE_UNITS_PER_M),
+        "pupil": np.float64(SCENE_UNITS_PER_M * (0.5 * setup.eye.pupil_diameter_m
+                                                 if pupil_radius_m is None else pupil_radius_m)),
     }
 
 
@@ -114,13 +117,15 @@ def to_drjit(state: dict, mi) -> dict:
             "m2": vec(state["minv"][2]), "t": vec(state["tinv"]),
             "center": vec(state["center"]), "gaze": vec(state["gaze"]),
             "limbus": dr.opaque(F64, float(state["limbus"])),
-            "sclera": dr.opaque(F64, float(state["sclera"]))}
+            "sclera": dr.opaque(F64, float(state["sclera"])),
+            "pupil": dr.opaque(F64, float(state["pupil"]))}
 
 
 def light_table(setup, options, layout, mi) -> dict:
     """The scene's constants for :func:`mnee_radiance`: the strobe lights as float64 Dr.Jit
     arrays (``center`` (K) points, ``radius`` (K), in cm, ``count`` K), and the iris and pupil
-    disks (``iris_cm``, ``pupil_cm`` radii, ``pupil_offset_cm`` in front of the iris, albedos)."""
+    disks (``iris_cm``, ``pupil_offset_cm`` in front of the iris, albedos; the pupil's radius:
+    :func:`pose_state`)."""
     import drjit as dr
 
     F64 = dr.float64_array_t(mi.Float)
@@ -131,7 +136,6 @@ def light_table(setup, options, layout, mi) -> dict:
     return {"center": V64(F64(p[:, 0]), F64(p[:, 1]), F64(p[:, 2])), "radius": F64(r),
             "count": int(p.shape[0]),
             "iris_cm": float(layout.limbus_radius_m * IRIS_OVERLAP * SCENE_UNITS_PER_M),
-            "pupil_cm": float(options.pupil_radius_m * SCENE_UNITS_PER_M),
             "pupil_offset_cm": float(PUPIL_OFFSET_M * SCENE_UNITS_PER_M),
             "iris_albedo": float(options.iris_albedo),
             "pupil_albedo": float(options.pupil_albedo)}
@@ -410,7 +414,7 @@ def mnee_front(mi, ray_o, ray_d, state, lights, eta: float) -> dict:
     inv_eta = 1.0 / eta
     cos0_t = dr.safe_sqrt(1.0 - inv_eta * inv_eta * (1.0 - cos0 * cos0))
     d_in = d_cam * inv_eta + n0 * (inv_eta * cos0 - cos0_t)
-    x_p, on_pupil = _plane_hit(state, y0, d_in, lights["pupil_offset_cm"], lights["pupil_cm"])
+    x_p, on_pupil = _plane_hit(state, y0, d_in, lights["pupil_offset_cm"], state["pupil"])
     x_i, on_iris = _plane_hit(state, y0, d_in, 0.0, lights["iris_cm"])
     hit = (disc > 0) & (t0 > 0) & (cos0 > 0) & on_cap(state, y0) & (on_pupil | on_iris)
     return {"hit": mi.Bool(hit), "x": dr.select(on_pupil, x_p, x_i),
@@ -492,6 +496,4 @@ def mnee_integrator(mi, eye_scene):
 
 
 __all__ = ["NEWTON_ITERATIONS", "connect", "light_table", "mnee_back", "mnee_front",
-           "mnee_integrator", "mnee_lanes",
-           "mnee_radiance",
-           "pose_state", "to_drjit", "on_cap"]
+           "mnee_integrator", "mnee_lanes", "mnee_radiance", "pose_state", "to_drjit", "on_cap"]

@@ -39,8 +39,9 @@ from estimator.banding import exposure_start, readout_time, row_pulse_weights, s
 from estimator.eye import gaze_direction
 from estimator.setup import Setup
 
+from ..motion.pupil import pupil_diameters
 from .backend import activate, is_jit_variant
-from .layout import DEFAULT_AMBIENT_RADIANCE, SceneOptions
+from .layout import DEFAULT_AMBIENT_RADIANCE, SceneOptions, pupil_radius
 from .mnee import mnee_lanes
 from .scene import EyeScene, sensor_dict
 
@@ -99,6 +100,8 @@ class FrameRender:
         Every instant the ambient light was sampled at (strobe instants included).
     lid_closure : (P,) float
         Upper lid closure of the trajectory's blinks at each pulse (zeros without blinks).
+    pupil_diameter_m : (P,) float
+        Pupil diameter at each pulse (the scene's, unless the trajectory varies it).
     """
 
     radiance: np.ndarray
@@ -110,6 +113,7 @@ class FrameRender:
     pitch_rad: np.ndarray
     ambient_times_s: np.ndarray
     lid_closure: np.ndarray | None = None
+    pupil_diameter_m: np.ndarray | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -301,8 +305,10 @@ class BandedRenderer:
         if not (math.isfinite(blur_step_px) and blur_step_px > 0):
             raise ValueError(f"blur_step_px must be finite and > 0, got {blur_step_px!r}")
         base = options if options is not None else SceneOptions()
+        # The pupil resolved to a number: the manifest records the radius rendered.
         self.options = dataclasses.replace(base, cornea=cornea, eyelid_openness=eyelid_openness,
-                                           ambient_radiance=float(ambient), channels="split")
+                                           ambient_radiance=float(ambient), channels="split",
+                                           pupil_radius_m=pupil_radius(setup, base))
         self.setup, self.spp, self.seed = setup, int(spp), int(seed)
         self.ambient_spp = int(ambient_spp) if ambient_spp is not None else max(1, spp // 16)
         self.blur_step_px, self.max_ambient_instants = float(blur_step_px), max_ambient_instants
@@ -452,6 +458,7 @@ class BandedRenderer:
         closure = getattr(trajectory, "lid_closure_at", None)
         closure = (np.zeros(yaw.shape) if closure is None
                    else np.atleast_1d(closure(plan.times_s)))
+        pupil = pupil_diameters(trajectory, plan.times_s, 2.0 * self.options.pupil_radius_m)
         H = self.setup.camera.height_px
         radiance = np.zeros((H, self.setup.camera.width_px))
         inv_pulse = 1.0 / self.setup.strobe.pulse_s
@@ -460,7 +467,7 @@ class BandedRenderer:
             col = int(plan.pulse_column[k])
             spp = self.spp if col >= 0 else self.ambient_spp
             seed = _slice_seed(self.seed, frame_index, k)
-            self.eye_scene.set_pose(yaw[k], pitch[k], closure[k])
+            self.eye_scene.set_pose(yaw[k], pitch[k], closure[k], 0.5 * pupil[k])
             if full_frames:
                 img = self.mi.render(self.eye_scene.scene, spp=spp, seed=seed,
                                      integrator=self.eye_scene.render_integrator)
@@ -475,7 +482,8 @@ class BandedRenderer:
         order = np.argsort(plan.pulse_column[strobe_k])
         return FrameRender(radiance.astype(np.float32), plan.pulse_indices, plan.pulse_times_s,
                            plan.row_weights, int(frame_index), yaw[strobe_k][order],
-                           pitch[strobe_k][order], plan.times_s, closure[strobe_k][order])
+                           pitch[strobe_k][order], plan.times_s, closure[strobe_k][order],
+                           pupil[strobe_k][order])
 
     def render_frame(self, trajectory, frame_index: int) -> FrameRender:
         """Render frame ``frame_index`` of an eye ``trajectory`` (``angles_at(t)``), band by band.

@@ -62,6 +62,7 @@ from .layout import (
     EyeLayout,
     SceneOptions,
     eye_layout,
+    pupil_radius,
 )
 from .lids import LASH_ALBEDO, LID_MOVING_KEYS, lash_mesh, lid_transforms, moving_lid_meshes
 from .meshes import (
@@ -171,7 +172,7 @@ def describe_scene(setup: Setup, options: SceneOptions = SceneOptions(), *, spp:
     """The scene of a Setup with the eye at a pose (see the module docstring)."""
     layout = eye_layout(setup, options)
     split = options.channels == "split"
-    T = eye_part_transforms(setup, layout, yaw_rad, pitch_rad, options.pupil_radius_m)
+    T = eye_part_transforms(setup, layout, yaw_rad, pitch_rad, pupil_radius(setup, options))
     cornea_bsdf = _cornea_bsdf(setup, options)
     objects = {
         "type": "scene",
@@ -359,13 +360,19 @@ class EyeScene:
         # from the same code path (the loaded ones differ in the last float32 bit).
         self.pose = (math.nan, math.nan)
         self.closure = math.nan
+        #: The scene's pupil radius (m), and the one now drawn (set_pose may change it).
+        self.pupil_radius_m = pupil_radius(setup, options)
+        self.pupil_now_m = math.nan
         self.moving_lids = setup.eyelids if options.eyelid_openness is not None else None
         self.set_pose(0.0, 0.0)
 
-    def set_pose(self, yaw_rad: float, pitch_rad: float, closure: float = 0.0) -> bool:
+    def set_pose(self, yaw_rad: float, pitch_rad: float, closure: float = 0.0,
+                 pupil_radius_m: float | None = None) -> bool:
         """Move cornea, sclera, iris and pupil to an eye pose, and the lids that follow the eye
         (a Setup with ``eyelids``) to its pitch and a blink ``closure`` in [0, 1] (0: open);
-        False when nothing changed. Static lids ignore ``closure``."""
+        False when nothing changed. Static lids ignore ``closure``. ``pupil_radius_m`` sizes
+        the pupil (m; None: the scene's): the pupil disk's ``to_world`` scale and MNEE's pose
+        input, so a new size recompiles nothing."""
         pose = (float(yaw_rad), float(pitch_rad))
         if not all(math.isfinite(a) for a in pose):
             raise ValueError(f"eye pose must be finite, got {pose}")
@@ -374,10 +381,14 @@ class EyeScene:
             raise ValueError(f"closure must lie in [0, 1], got {closure!r}")
         if self.moving_lids is None:
             closure = 0.0
-        if pose == self.pose and closure == self.closure:
+        pupil = self.pupil_radius_m if pupil_radius_m is None else float(pupil_radius_m)
+        if not (math.isfinite(pupil) and 0 < pupil < self.layout.limbus_radius_m):
+            raise ValueError(f"pupil radius must be > 0 and inside the iris "
+                             f"({self.layout.limbus_radius_m} m), got {pupil!r}")
+        if pose == self.pose and closure == self.closure and pupil == self.pupil_now_m:
             return False
         mi, p = self.mi, self._params
-        T = eye_part_transforms(self.setup, self.layout, *pose, self.options.pupil_radius_m)
+        T = eye_part_transforms(self.setup, self.layout, *pose, pupil)
         if self.moving_lids is not None:
             T.update(lid_transforms(self.setup, self.moving_lids, pose[1], closure))
         for name, M in T.items():
@@ -394,9 +405,9 @@ class EyeScene:
         if self.mnee_enabled:
             # The lights ride along: a frozen kernel may only read variables it is given.
             self.mnee_state = {"pose": to_drjit(pose_state(self.setup, self.layout,
-                                                           T["cornea"], *pose), mi),
+                                                           T["cornea"], *pose, pupil), mi),
                                "lights": self.mnee_lights}
-        self.pose, self.closure = pose, closure
+        self.pose, self.closure, self.pupil_now_m = pose, closure, pupil
         return True
 
     def mnee(self, sampler, ray):

@@ -218,7 +218,8 @@ def dataset(renderer_available, small, tmp_path_factory):
 def test_layout(dataset):
     names = sorted(str(p.relative_to(dataset)) for p in dataset.rglob("*"))
     want = ["frames", "labels.jsonl", "manifest.json"]
-    want += [f"frames/{f:06d}.{ext}" for f in range(FRAMES) for ext in ("exr", "png")]
+    want += [f"frames/{f:06d}{ext}" for f in range(FRAMES)
+             for ext in (".exr", ".png", "_mask.png")]
     assert names == sorted(want)
 
 
