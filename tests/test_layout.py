@@ -40,7 +40,7 @@ LAYERS = {
         {"live"},
     ],
     "scet_render": [
-        {"render", "motion"},
+        {"render", "motion", "cluster"},
         {"simulate", "band_diagram"},
         {"dataset"},
         {"validate", "reproduce", "design", "study", "compare"},
