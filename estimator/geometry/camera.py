@@ -59,6 +59,7 @@ def tilt_matrix(tau_x: float, tau_y: float) -> np.ndarray:
 
 def full_coefficients(dist) -> np.ndarray:
     """(14,) OpenCV coefficients (0 to 14 of them) padded with zeros to OpenCV's full model."""
+    dist = np.asarray(dist, dtype=np.float64).reshape(-1)
     full = np.zeros(14)
     full[:dist.size] = dist
     return full

@@ -29,9 +29,9 @@ from estimator.geometry import Camera, full_coefficients, lens_jacobian, lens_ma
 from .layout import SCENE_UNITS_PER_M
 
 #: Newton steps of the undistortion inside the kernels. Measured in float64 from the distorted
-#: point over a 641 x 481 grid of the prototype's lens (k1 = -0.30 at 643 px, corners moved
-#: ~10 px): the step falls below 1e-7 normalised units (float32's resolution) after 4 steps;
-#: 8 leave margin for stronger lenses (a lens that needs more folds, and is refused).
+#: point over a 641 x 481 grid of a stock M12 lens (k1 = -0.30, k2 = 0.12 at 643 px, corners
+#: moved ~10 px): the largest step is 9e-2, 3e-3, 5e-6, 1e-11, 4e-16 at steps 1-5 (float32's
+#: resolution is ~6e-8); 8 leave margin for stronger lenses.
 NEWTON_STEPS = 8
 
 
@@ -52,9 +52,9 @@ class LensRays:
     origin: tuple           # scene units
 
     @classmethod
-    def of(cls, camera: Camera) -> "LensRays | None":
-        """The lens of ``camera``; None for a pinhole (the sensor's own rays)."""
-        if not (camera.has_distortion or camera.is_thin_lens):
+    def of(cls, camera: Camera, *, pinhole: bool = False) -> "LensRays | None":
+        """The lens of ``camera``; None for a pinhole (the sensor's own rays) unless ``pinhole``."""
+        if not (pinhole or camera.has_distortion or camera.is_thin_lens):
             return None
         k = full_coefficients(camera.distortion)
         tilt = None
