@@ -82,8 +82,12 @@ def lens_map(k, x, y):
 
 
 def _distort(k: np.ndarray, x: np.ndarray, y: np.ndarray):
-    """OpenCV's lens map of normalised (...) x, y with the (14,) coefficients ``k``, tilt included."""
-    xd, yd = lens_map(k, x, y)
+    """OpenCV's lens map of normalised (...) x, y with the (14,) coefficients ``k``, tilt included.
+
+    Points far outside the field (|x| ~ 1e50, at the camera plane) overflow to inf or NaN
+    pixels rather than warn: no lens model holds there."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        xd, yd = lens_map(k, x, y)
     if k[12] or k[13]:
         xd, yd = _homography(tilt_matrix(k[12], k[13]), xd, yd)
     return xd, yd
