@@ -178,6 +178,32 @@ def _row(r: LensResult) -> str:
             f"{r.pinhole_median_px:.3f} |")
 
 
+def _reading(defocus: list, optics: list) -> str:
+    """Sentences computed from the tables (so that a rerun rewrites them with its numbers)."""
+    lines = []
+    base = next((r for r in defocus if r.condition.focus_offset_m == 0.0), None)
+    if base is not None and math.isfinite(base.found):
+        tolerated = [abs(r.condition.focus_offset_m) * 1e3 for r in defocus
+                     if r.found >= 0.9 * base.found and r.median_px <= 1.5 * base.median_px]
+        worst = max(defocus, key=lambda r: abs(r.condition.focus_offset_m))
+        lines.append(
+            f"* In focus the detector finds {100 * base.found:.0f} % of the lit glints, centroids "
+            f"{base.median_px:.3f} px (median) from the labels. Focus errors up to "
+            f"{max(tolerated):g} mm keep at least 90 % of that share and at most 1.5x the error; "
+            f"at {worst.condition.focus_offset_m * 1e3:+g} mm ({worst.blur_px:.1f} px blur) it finds "
+            f"{100 * worst.found:.0f} %, median {worst.median_px:.3f} px.")
+        lines.append(
+            f"* Ignoring the distortion costs {base.pinhole_median_px:.3f} px (median, against "
+            f"the undistorted labels) at these fixations, where the glints sit near the image "
+            f"centre; the corners move far more (see `scet scene`).")
+    ok = [r for r in optics if math.isfinite(r.found)]
+    if ok:
+        best = max(ok, key=lambda r: (r.found, -r.median_px))
+        lines.append(f"* Of the optics, {best.condition.label} finds the most glints "
+                     f"({100 * best.found:.0f} %, median {best.median_px:.3f} px).")
+    return "\n".join(lines) if lines else "* No condition measured."
+
+
 def report(setup: Setup, defocus: list, optics: list, *, spp: int, seed: int,
            poses: int = len(POSES)) -> str:
     """``reports/lens.md``: the two tables and what they leave out."""
@@ -209,6 +235,10 @@ the distortion is off by.
 
 {head}
 """ + "\n".join(_row(r) for r in optics) + """
+
+## Reading
+
+""" + _reading(defocus, optics) + """
 
 ## What this leaves out
 
