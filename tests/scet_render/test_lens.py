@@ -211,6 +211,7 @@ def test_lens_kernels_replay_with_mnee(mi, half):
     assert (with_mnee - without).sum() > 0.01 * with_mnee.sum()
 
 
+@pytest.mark.slow  # two eye scenes built: ~20-40 s on 2 loaded cores
 def test_thin_lens_chief_rays_are_the_pinholes(mi, half):
     """The pupil's centre is the centre of projection: region_labels (chief rays) of a thin-lens
     camera see exactly what the pinhole's pixel centres see."""
