@@ -48,8 +48,9 @@ BOARD_NAME = "board.json"
 WHITE_ALBEDO, BLACK_ALBEDO, SURROUND_ALBEDO = 0.90, 0.05, 0.30
 #: 8-bit value of albedo 1 (white paper at 0.9 reads 211: headroom, no clipping).
 WHITE_DN = 235.0
-#: Texels per board square: 0.054 mm camera pixels at 35 mm (643 px) against 3 mm squares
-#: leave ~55 pixels a square at most; 200 texels keep the texture 4x finer than any pixel.
+#: Texels per board square: at the prototype's 23 mm a 643 px camera's pixel covers 0.036 mm
+#: and :func:`spec_for`'s squares are 1.3 mm, ~36 pixels; 200 texels keep the texture ~5x
+#: finer than a pixel (and the bilinear texture lookup below the pixel's box filter).
 TEXELS_PER_SQUARE = 200
 #: Rows rendered at once (bounds the Dr.Jit arrays to rows * width * spp lanes).
 ROWS_PER_CHUNK = 48
