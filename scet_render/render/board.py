@@ -93,8 +93,8 @@ def spec_for(setup: Setup) -> CharucoSpec:
     a square (OpenCV's tutorial board's ratio)."""
     cam = setup.camera
     width_m = working_distance_m(setup) * cam.width_px / cam.fx_px
-    square = max(0.1e-3, round(0.6 * width_m / 11 / 0.1e-3) * 0.1e-3)
-    return CharucoSpec((11, 8), square, 0.75 * square)
+    tenths_mm = max(1, round(0.6 * width_m / 11 * 1e4))
+    return CharucoSpec((11, 8), tenths_mm / 1e4, 0.75 * tenths_mm / 1e4)
 
 
 def working_distance_m(setup: Setup) -> float:
