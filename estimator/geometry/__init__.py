@@ -3,7 +3,7 @@ projection of a spherical cornea (:func:`project_glints`), its root finders and 
 and the packed rows the cornea fits sum.
 
 Modules: ``rigid`` (poses, rotations, point checks), ``camera`` (:class:`Camera`),
-``reflection`` (:func:`project_glints`, :func:`reflection_points`, :func:`reflect_pixel_rays`),
+``reflection`` (:func:`project_glints`, in ideal (undistorted) pixels, :func:`reflection_points`, :func:`reflect_pixel_rays`),
 ``conic`` (:func:`project_glints_conic`: exact reflections on an aspheric, conic cornea),
 ``refraction`` (:func:`project_through_cornea`: points behind the cornea as the camera sees
 them, refracted exactly by the sphere or the conic), ``roots`` (the reflection equation's
@@ -13,7 +13,7 @@ solvers), ``jacobians`` (:func:`glint_jacobians`),
 compiled with Numba where it is).
 """
 
-from .camera import Camera
+from .camera import Camera, full_coefficients, lens_jacobian, lens_map, tilt_matrix
 from .conic import conic_reflection_points, conic_sag, project_glints_conic
 from .compiled import camera_arrays, glints_and_rows_one_pose, glints_one_pose
 from .jacobians import glint_jacobians, jacobian_terms, radius_rows
@@ -36,5 +36,6 @@ __all__ = [
     "rotation_from_vector", "rotation_to_vector", "look_at_rotation", "RigidPose",
     "rotations_from_vectors", "glints_one_pose", "glints_and_rows_one_pose", "camera_arrays",
     "project_glints_conic", "conic_reflection_points", "conic_sag", "project_through_cornea",
-    "refraction_points", "snell_residual_rad"
+    "refraction_points", "snell_residual_rad", "lens_map", "lens_jacobian",
+    "tilt_matrix", "full_coefficients",
 ]

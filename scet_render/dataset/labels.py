@@ -18,6 +18,7 @@ from estimator.inputs import MAX_FRAMES, MAX_FRAME_PX
 from estimator.setup import Setup
 
 from ..motion import Trajectory
+from ..motion.pupil import pupil_diameters
 from ..render import OCCLUDER_NAMES, occluder_names, pupil_image
 from ..simulate import ground_truth_glints
 from .format import FORMAT, LABELS_NAME, VERSION, DatasetError, StrobeLabel, _floats
@@ -58,8 +59,9 @@ def frame_labels(setup: Setup, trajectory: Trajectory, frame: int, bands=None) -
     yaw, pitch = trajectory.angles_at(time_s)
     target = trajectory.target_at(time_s)
     glints, visible, center = ground_truth_glints(setup, yaw, pitch)
+    glints = setup.camera.distort_px(glints)  # through the lens, as Camera.project (pinhole: as is)
     pupil = pupil_image(setup, yaw, pitch,
-                        trajectory.pupil_diameter_at(time_s, setup.eye.pupil_diameter_m))
+                        pupil_diameters(trajectory, time_s, setup.eye.pupil_diameter_m))
     lids = None
     if setup.eyelids is not None:
         closure = trajectory.lid_closure_at(time_s)

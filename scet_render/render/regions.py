@@ -153,11 +153,12 @@ def classify_rays(eye_scene, ray, gaze):
 _KERNELS: dict = {}
 
 
-def _rows_kernel(eye_scene, n_rows: int):
+def _rows_kernel(eye_scene, n_rows: int, lens=None):
     """A ``dr.freeze``-recorded classification of ``n_rows`` image rows from an opaque first
-    row (pixel centres), replayed at every pose like the renderer's band kernels: a pose's
+    row (pixel centres; through ``lens``'s chief rays, :class:`~scet_render.render.lens.LensRays`,
+    when the camera has one), replayed at every pose like the renderer's band kernels: a pose's
     classification costs its rays, not a trace of the Python above."""
-    key = (id(eye_scene.scene), n_rows)
+    key = (id(eye_scene.scene), n_rows, id(lens))
     if _KERNELS.get("scene") is not eye_scene.scene:
         _KERNELS.clear()
         _KERNELS["scene"] = eye_scene.scene
@@ -175,6 +176,8 @@ def _rows_kernel(eye_scene, n_rows: int):
             film = mi.Point2f(mi.Float(idx % W) + 0.5, mi.Float(idx // W + row0) + 0.5)
             ray, _ = sensor.sample_ray(0.0, 0.5, film * mi.ScalarVector2f(1.0 / W, 1.0 / H),
                                        mi.Point2f(0.5, 0.5))
+            if lens is not None:  # the chief ray through the lens (the pupil's centre)
+                ray.o, ray.d = lens.rays(mi, film, mi.Point2f(0.5, 0.5))
             hit = _trace(mi, scene, ray, **pose, eta=eta, sclera=sclera, cornea=cornea)
             dr.eval(hit)
             return hit
@@ -183,8 +186,9 @@ def _rows_kernel(eye_scene, n_rows: int):
     return _KERNELS[key]
 
 
-def _pixel_rays(eye_scene, rows):
-    """Rays through the pixel centres of image ``rows`` ((k,) int), row-major."""
+def _pixel_rays(eye_scene, rows, lens=None):
+    """Rays through the pixel centres of image ``rows`` ((k,) int), row-major (the chief rays of
+    ``lens`` when the camera has one)."""
     mi = eye_scene.mi
     cam = eye_scene.setup.camera
     W, H = cam.width_px, cam.height_px
@@ -193,6 +197,8 @@ def _pixel_rays(eye_scene, rows):
     v = np.repeat(rows, W)
     film = mi.Point2f(mi.Float((u + 0.5) / W), mi.Float((v + 0.5) / H))
     ray, _ = eye_scene.sensor.sample_ray(0.0, 0.5, film, mi.Point2f(0.5, 0.5))
+    if lens is not None:
+        ray.o, ray.d = lens.rays(mi, film * mi.ScalarVector2f(W, H), mi.Point2f(0.5, 0.5))
     return ray
 
 
@@ -213,7 +219,8 @@ def region_labels(renderer, yaw_rad: float, pitch_rad: float) -> np.ndarray:
     es, cam = renderer.eye_scene, renderer.setup.camera
     es.set_pose(yaw_rad, pitch_rad)
     gaze = eye_rotation_matrix(yaw_rad, pitch_rad) @ np.array([0.0, 0.0, -1.0])
-    hit, names = classify_rays(es, _pixel_rays(es, np.arange(cam.height_px)), gaze)
+    hit, names = classify_rays(es, _pixel_rays(es, np.arange(cam.height_px),
+                                                getattr(renderer, "lens", None)), gaze)
     label = _lookup(hit, names, {name: k for k, name in enumerate(REGIONS)}, -1)
     return label.reshape(cam.height_px, cam.width_px)
 
@@ -226,13 +233,14 @@ def pose_mask(renderer, yaw_rad: float, pitch_rad: float, *, closure: float = 0.
     from .backend import is_jit_variant
 
     es, cam = renderer.eye_scene, renderer.setup.camera
+    lens = getattr(renderer, "lens", None)
     rows = np.arange(cam.height_px) if rows is None else np.asarray(rows, dtype=np.int64)
     es.set_pose(yaw_rad, pitch_rad, closure, pupil_radius_m)
     gaze = eye_rotation_matrix(yaw_rad, pitch_rad) @ np.array([0.0, 0.0, -1.0])
     table = {name: MASK_CLASSES.index(c) for name, c in _SHAPE_CLASS.items()}
     names = _shape_ids(es.mi, es.scene)
     if not is_jit_variant(es.mi.variant()):
-        hit, _ = classify_rays(es, _pixel_rays(es, rows), gaze)
+        hit, _ = classify_rays(es, _pixel_rays(es, rows, lens), gaze)
         return _lookup(hit, names, table, 0).astype(np.uint8).reshape(rows.size, cam.width_px)
     import drjit as dr
 
@@ -242,7 +250,7 @@ def pose_mask(renderer, yaw_rad: float, pitch_rad: float, *, closure: float = 0.
     breaks = np.flatnonzero(np.diff(rows) != 1) + 1
     at = 0
     for run in np.split(rows, breaks):
-        hit = _rows_kernel(es, run.size)(es.scene, es.sensor, dr.opaque(mi.UInt32, int(run[0])),
+        hit = _rows_kernel(es, run.size, lens)(es.scene, es.sensor, dr.opaque(mi.UInt32, int(run[0])),
                                          dr.zeros(mi.UInt32, run.size * cam.width_px), pose)
         out[at:at + run.size] = _lookup(_to_numpy(hit), names, table, 0).reshape(
             run.size, cam.width_px)
