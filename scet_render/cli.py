@@ -477,6 +477,10 @@ def build_parser() -> argparse.ArgumentParser:
     from scet_render.cli_studies import add_parsers
 
     add_parsers(sub)      # scet design-lights, scet study events
+
+    from scet_render.cli_camera import add_parsers as add_camera_parsers
+
+    add_camera_parsers(sub)   # scet camera calibrate
     return ap
 
 
