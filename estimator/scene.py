@@ -29,6 +29,7 @@ from .eye import (
 )
 from .eyelids import read_eyelids
 from .geometry import Camera, RigidPose, look_at_rotation, rotation_from_vector, rotation_matrix
+from .lens_keys import read_lens
 from .setup import DistanceSensor, LightGroup, LightRig, Screen, Sensor, Setup, Strobe
 
 FORMAT = "scet-scene"
@@ -297,11 +298,18 @@ def _read_camera(t: _Table, eye: Eye) -> Camera:
             R = rotation_from_vector(t.quantity("rotation", "angle", shape=3))
     except ValueError as exc:
         raise t.error(ways[0], str(exc)) from None
+    lens = read_lens(t, fx)
     t.finish()
     try:
-        return Camera(position, R, fx, fy, pp[0], pp[1], width, height)
+        camera = Camera(position, R, fx, fy, pp[0], pp[1], width, height)
     except ValueError as exc:
         raise t.error(ways[0], str(exc)) from None
+    if lens is None:
+        return camera
+    try:
+        return Camera(position, R, fx, fy, pp[0], pp[1], width, height, *lens)
+    except ValueError as exc:  # the one lens check left to Camera: a folding distortion
+        raise t.error("distortion", str(exc)) from None
 
 
 def _read_sensor(t: _Table, camera: Camera) -> Sensor:

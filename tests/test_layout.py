@@ -28,7 +28,7 @@ LAYERS = {
         {"errors", "checks", "formats", "reasons"},
         {"geometry", "lens"},
         {"eye", "setup"},
-        {"eyelids"},
+        {"eyelids", "lens_keys"},
         {"scene", "banding", "metrics"},
         {"cornea"},
         {"calibration"},

@@ -8,7 +8,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, replace
 
-from ..geometry import Camera
 from ..setup import Sensor, Setup, Strobe
 from .equations import _check_pulse_s, _check_sensor
 
@@ -121,9 +120,9 @@ def scaled_setup(setup: Setup, factor: int) -> Setup:
     if factor == 1:
         return setup
     cam = setup.camera
-    camera = Camera(cam.position_m, cam.rotation, cam.fx_px / factor, cam.fy_px / factor,
-                    (cam.cx_px + 0.5) / factor - 0.5, (cam.cy_px + 0.5) / factor - 0.5,
-                    cam.width_px // factor, cam.height_px // factor)
+    camera = cam.with_intrinsics(cam.fx_px / factor, cam.fy_px / factor,
+                                 (cam.cx_px + 0.5) / factor - 0.5, (cam.cy_px + 0.5) / factor - 0.5,
+                                 cam.width_px // factor, cam.height_px // factor)
     if setup.sensor.total_lines % factor or cam.height_px % factor:
         raise ValueError(f"cannot scale setup {setup.name!r} by 1/{factor}: total_lines "
                          f"{setup.sensor.total_lines} and height {cam.height_px} must divide")
