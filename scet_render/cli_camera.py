@@ -10,7 +10,27 @@ from pathlib import Path
 
 from .runner import integer
 
-__all__ = ["add_parsers", "cmd_camera"]
+__all__ = ["add_parsers", "cmd_camera", "camera_arg", "with_camera_file"]
+
+
+def camera_arg(p) -> None:
+    """The ``--camera camera.json`` flag of ``scet calibrate`` and ``scet track``."""
+    p.add_argument("--camera", type=Path,
+                   help="camera file from scet camera calibrate: its intrinsics and lens "
+                        "distortion replace the scene's (the image size must be the scene's); "
+                        "detected glints are undistorted before matching, calibration and gaze. "
+                        "Calibrate and track with the same camera file")
+
+
+def with_camera_file(setup, path):
+    """``setup`` with the camera file at ``path`` (None: ``setup`` as it is)."""
+    if path is None:
+        return setup
+    from dataclasses import replace
+
+    from estimator.lens import camera_from_file, read_camera_file
+
+    return replace(setup, camera=camera_from_file(setup.camera, read_camera_file(path), path))
 
 
 def cmd_camera(args) -> int:

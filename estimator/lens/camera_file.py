@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import datetime, timezone
 
 import numpy as np
@@ -26,11 +26,13 @@ import numpy as np
 from ..checks import Doc
 from ..errors import InputError
 from ..formats import atomic_write, check_format, read_json
+from ..geometry.camera import Camera
 from .board import BoardSpec, board_from_doc
 
 __all__ = ["CAMERA_FORMAT", "CAMERA_VERSION", "DISTORTION_LENGTHS", "CameraFileError",
            "CameraFile", "read_camera_file", "write_camera_file", "radial_fold_radius",
-           "distortion_effect_px", "distortion_difference_px"]
+           "distortion_effect_px", "distortion_difference_px", "pinhole_of", "ideal_setup",
+           "camera_from_file"]
 
 CAMERA_FORMAT, CAMERA_VERSION = "scet-camera", 1
 #: Numbers of distortion coefficients OpenCV's model takes.
@@ -248,3 +250,39 @@ def read_camera_file(path) -> CameraFile:
                       date=doc.string("date", required=False, default=""),
                       model=doc.string("distortion_model", required=False, default="given"),
                       warnings=tuple(str(x) for x in doc.items("warnings", required=False)))
+
+
+def pinhole_of(camera: Camera) -> Camera:
+    """``camera`` without its distortion: the ideal (pinhole) image that undistorted points
+    lie in and that the estimator's geometry (projection, rays, fits) works in; ``camera``
+    itself when it has none."""
+    if not camera.has_distortion:
+        return camera
+    return replace(camera, distortion=())
+
+
+def ideal_setup(setup):
+    """``setup`` (an :class:`estimator.setup.Setup`) with :func:`pinhole_of` its camera;
+    ``setup`` itself for a pinhole."""
+    if not setup.camera.has_distortion:
+        return setup
+    return replace(setup, camera=pinhole_of(setup.camera))
+
+
+def camera_from_file(camera: Camera, camera_file: CameraFile, path=None) -> Camera:
+    """``camera`` (a scene's: its pose, thin lens, pixel pitch) with the intrinsics and the
+    distortion of ``camera_file`` in place of its own.
+
+    Raises
+    ------
+    CameraFileError
+        The file's image size is not the camera's (naming ``path`` and ``image_size_px``).
+    """
+    size = (camera_file.width_px, camera_file.height_px)
+    if size != (camera.width_px, camera.height_px):
+        raise CameraFileError(f"image size {size[0]}x{size[1]}, the scene's camera is "
+                              f"{camera.width_px}x{camera.height_px}", path=path,
+                              key="image_size_px")
+    d = camera_file.distortion if camera_file.has_distortion else ()
+    return replace(camera, fx_px=camera_file.fx_px, fy_px=camera_file.fy_px,
+                   cx_px=camera_file.cx_px, cy_px=camera_file.cy_px, distortion=d)

@@ -71,7 +71,8 @@ def measure_image(setup: Setup, image, index: int, samples, black_dn: float) -> 
                           full_scale_dn=float(2 ** sensor.bit_depth - 1))
     if bands.status == "fit failed":
         bands = _bands_at_pitch(setup, profile, index, pitch, rise)
-    det = detect_glints(np.asarray(image), setup, index)
+    # In the ideal image, as the tracker's samples are (a pinhole passes them on untouched).
+    det = detect_glints(np.asarray(image), setup, index).undistorted(setup.camera)
     used = np.concatenate([s.glints_px for s in samples if s.glints_px.size]) \
         if any(s.glints_px.size for s in samples) else np.zeros((0, 2))
     pts = np.stack([det.u_px, det.v_px], axis=1)
