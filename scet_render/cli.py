@@ -15,7 +15,7 @@ import numpy as np
 from .cli_data import add_dataset_parsers, add_render_parser
 from .cli_progress import StageBars, print_table, progress_bar
 from .cli_camera import add_parsers as add_camera_parsers, camera_arg, with_camera_file
-from .cli_scene import folder_scene
+from .cli_scene import describe_lens, folder_scene
 from .runner import MAX_FRAMES, MAX_SEED, MAX_SPP, finite, integer, run
 
 
@@ -23,7 +23,7 @@ def _describe(setup) -> str:
     cam, sen, st = setup.camera, setup.sensor, setup.strobe
     return (f"scene {setup.name} ({setup.source})\n"
             f"  camera {cam.width_px}x{cam.height_px} px, f = {cam.fx_px:g} px, at "
-            f"{np.round(cam.position_m * 1e3, 2).tolist()} mm\n"
+            f"{np.round(cam.position_m * 1e3, 2).tolist()} mm" + describe_lens(cam) + "\n"
             f"  eye r_c = {setup.eye.cornea_radius_m * 1e3:g} mm, r_co = "
             f"{setup.eye.cornea_offset_m * 1e3:.3f} mm, limbus {setup.eye.limbus_depth_m * 1e3:.3f} mm "
             f"behind the apex"

@@ -35,12 +35,33 @@ def cmd_render_calibration(args, setup) -> int:
     return 0
 
 
+def cmd_render_board(args, setup) -> int:
+    from .render.board import render_board_frames
+
+    if args.calibration is not None or args.raw or args.workers or args.ray_address:
+        raise ValueError("--board renders board frames on this machine: leave out --calibration, "
+                         "--raw, --workers and --ray-address")
+    if args.frames is None:
+        raise ValueError("--board needs --frames N (15-25 views make a calibration)")
+    bar, update = progress_bar(args.frames, "frame", f"render {args.board} board {setup.name}")
+    try:
+        out = render_board_frames(setup, args.out, frames=args.frames, spp=args.spp,
+                                  seed=args.seed, progress=update)
+    finally:
+        bar.close()
+    print(f"board frames {out}: {args.frames} views of a {args.board} board through "
+          f"{setup.name}'s lens; the board, the true camera and poses in {out / 'board.json'}")
+    return 0
+
+
 def cmd_render(args) -> int:
     from estimator.scene import load_scene
 
     from .dataset import render_dataset
 
     setup = load_scene(args.scene)
+    if args.board is not None:
+        return cmd_render_board(args, setup)
     if args.calibration is not None:
         if args.frames is not None or args.raw:
             raise ValueError("--calibration renders one frame per target: leave out --frames "
@@ -139,6 +160,10 @@ def add_render_parser(sub, scene_help: str) -> None:
     p.add_argument("--calibration", metavar="PATTERN",
                    help="render single-pulse calibration frames instead: one per target of a "
                         "COLSxROWS fixation pattern (3x3, 5x5, 6x6) on the scene's screen")
+    p.add_argument("--board", choices=("charuco",),
+                   help="render --frames views of a ChArUco calibration board through the "
+                        "scene's lens instead (poses spread over the field at the working "
+                        "distance), with board.json: the board, true intrinsics and poses")
     p.add_argument("--out", type=Path, required=True, help="dataset folder (resumed if interrupted)")
     p.add_argument("--spp", type=integer(1, MAX_SPP), default=16, help="samples per pixel (default 16)")
     p.add_argument("--trajectory", choices=("fixations", "saccades", "grid"), default="fixations")

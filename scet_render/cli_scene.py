@@ -22,7 +22,7 @@ from pathlib import Path
 
 from estimator.errors import InputError
 
-__all__ = ["FolderSceneError", "recorded_scene", "folder_scene"]
+__all__ = ["FolderSceneError", "recorded_scene", "folder_scene", "describe_lens"]
 
 
 class FolderSceneError(InputError):
@@ -143,3 +143,19 @@ def folder_scene(folder, scene, command: str):
                 print(f"{command}: warning: --scene {scene} differs from the scene in {place} "
                       f"({', '.join(diffs)}); using --scene", file=sys.stderr)
     return setup
+
+
+def describe_lens(cam) -> str:
+    """The ``scet scene`` line of a camera's lens (empty for a pinhole)."""
+    import numpy as np
+
+    parts = []
+    if cam.has_distortion:
+        corner = cam.undistort_px([[-0.5, -0.5], [cam.width_px - 0.5, cam.height_px - 0.5]])
+        shift = np.hypot(*(corner - [[-0.5, -0.5], [cam.width_px - 0.5, cam.height_px - 0.5]]).T)
+        parts.append(f"distortion {np.round(cam.distortion, 4).tolist()} (corners move "
+                     f"{np.nanmax(shift):.1f} px)")
+    if cam.is_thin_lens:
+        parts.append(f"F{cam.f_number:g} focused at {cam.focus_distance_m * 1e3:g} mm "
+                     f"(f = {cam.focal_length_m * 1e3:.2f} mm, pupil {2e3 * cam.aperture_radius_m:.2f} mm)")
+    return ("\n  lens " + ", ".join(parts)) if parts else ""

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .cli_progress import StageBars
+from .cli_progress import StageBars, progress_bar
 from .runner import MAX_SEED, finite, integer
 
 
@@ -163,6 +163,24 @@ def cmd_study_aspheric(args) -> int:
     return 0
 
 
+def cmd_study_lens(args) -> int:
+    from estimator.formats import atomic_write
+    from estimator.scene import load_scene
+
+    from .study.lens import run_study
+
+    setup = load_scene(args.scene)
+    bar, update = progress_bar(10, "condition", f"study lens {setup.name}")
+    try:
+        text, _, _ = run_study(setup, spp=args.spp, seed=args.seed, progress=update)
+    finally:
+        bar.close()
+    path = atomic_write(Path(args.report_dir) / "lens.md", text)
+    print(text)
+    print(f"report written to {path}")
+    return 0
+
+
 def add_parsers(sub) -> None:
     """Add ``design-lights`` and ``study`` to the ``scet`` subcommands."""
     scene_help = "scene file or built-in scene name (default: paper_sim)"
@@ -221,7 +239,16 @@ def add_parsers(sub) -> None:
                         "paper's), conic (Q calibrated; scet calibrate --cornea-model conic); "
                         "default sphere,conic")
     a.set_defaults(func=cmd_study_aspheric)
+    lens = studies.add_parser("lens", help="glint detection and centroid error through the "
+                                           "scene's lens: defocus, focal length, aperture, "
+                                           "distance (reports/lens.md)")
+    lens.add_argument("scene", nargs="?", default="prototype_ov5647",
+                      help="scene file or built-in scene name (default: prototype_ov5647)")
+    lens.add_argument("--spp", type=integer(1, 4096), default=16)
+    lens.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
+    lens.add_argument("--report-dir", type=Path, default=Path("reports"))
+    lens.set_defaults(func=cmd_study_lens)
 
 
 __all__ = ["add_parsers", "rendered_band_shares", "cmd_design_lights", "cmd_study_events",
-           "cmd_study_aspheric", "cornea_models"]
+           "cmd_study_aspheric", "cmd_study_lens", "cornea_models"]

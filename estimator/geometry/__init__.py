@@ -3,7 +3,7 @@ projection of a spherical cornea (:func:`project_glints`), its root finders and 
 and the packed rows the cornea fits sum.
 
 Modules: ``rigid`` (poses, rotations, point checks), ``camera`` (:class:`Camera`),
-``reflection`` (:func:`project_glints`, :func:`reflection_points`, :func:`reflect_pixel_rays`),
+``reflection`` (:func:`project_glints`, in ideal (undistorted) pixels, :func:`reflection_points`, :func:`reflect_pixel_rays`),
 ``conic`` (:func:`project_glints_conic`: exact reflections on an aspheric, conic cornea),
 ``roots`` (the reflection equation's solvers), ``jacobians`` (:func:`glint_jacobians`),
 ``fit_rows`` (the centre and orbit fits' packed rows), ``compiled`` (:func:`glints_one_pose`,
@@ -11,7 +11,7 @@ Modules: ``rigid`` (poses, rotations, point checks), ``camera`` (:class:`Camera`
 compiled with Numba where it is).
 """
 
-from .camera import Camera
+from .camera import Camera, full_coefficients, lens_jacobian, lens_map, tilt_matrix
 from .conic import conic_reflection_points, conic_sag, project_glints_conic
 from .compiled import camera_arrays, glints_and_rows_one_pose, glints_one_pose
 from .jacobians import glint_jacobians, jacobian_terms, radius_rows
@@ -32,5 +32,6 @@ __all__ = [
     "project_glints", "reflect_pixel_rays", "as_points", "normalize", "rotation_matrix",
     "rotation_from_vector", "rotation_to_vector", "look_at_rotation", "RigidPose",
     "rotations_from_vectors", "glints_one_pose", "glints_and_rows_one_pose", "camera_arrays",
-    "project_glints_conic", "conic_reflection_points", "conic_sag"
+    "project_glints_conic", "conic_reflection_points", "conic_sag", "lens_map", "lens_jacobian",
+    "tilt_matrix", "full_coefficients",
 ]

@@ -46,7 +46,7 @@ UNDISTORT_MAX_ITER = 50
 _FOLD_SEARCH_R = 20.0
 
 
-def _tilt_matrix(tau_x: float, tau_y: float) -> np.ndarray:
+def tilt_matrix(tau_x: float, tau_y: float) -> np.ndarray:
     """(3, 3) OpenCV's tilted-sensor homography (calib3d ``computeTiltProjectionMatrix``)."""
     cx, sx, cy, sy = np.cos(tau_x), np.sin(tau_x), np.cos(tau_y), np.sin(tau_y)
     rot_x = np.array([[1.0, 0.0, 0.0], [0.0, cx, sx], [0.0, -sx, cx]])
@@ -57,15 +57,20 @@ def _tilt_matrix(tau_x: float, tau_y: float) -> np.ndarray:
     return proj_z @ rot_xy
 
 
-def _coefficients(dist: np.ndarray) -> np.ndarray:
-    """(14,) the coefficients padded with zeros to OpenCV's full model."""
+def full_coefficients(dist) -> np.ndarray:
+    """(14,) OpenCV coefficients (0 to 14 of them) padded with zeros to OpenCV's full model."""
+    dist = np.asarray(dist, dtype=np.float64).reshape(-1)
     full = np.zeros(14)
     full[:dist.size] = dist
     return full
 
 
-def _distort(k: np.ndarray, x: np.ndarray, y: np.ndarray, tilt: bool = True):
-    """OpenCV's lens map of normalised (...) x, y with the (14,) coefficients ``k``."""
+def lens_map(k, x, y):
+    """OpenCV's lens map without the tilt: ideal normalised x, y -> x'', y''.
+
+    Generic over the array type: numpy arrays, or Dr.Jit arrays (the renderer's rays) when ``k``
+    is a sequence of 14 Python floats (:func:`full_coefficients`).
+    """
     r2 = x * x + y * y
     r4 = r2 * r2
     r6 = r4 * r2
@@ -73,8 +78,18 @@ def _distort(k: np.ndarray, x: np.ndarray, y: np.ndarray, tilt: bool = True):
     xy2 = 2 * x * y
     xd = x * radial + k[2] * xy2 + k[3] * (r2 + 2 * x * x) + k[8] * r2 + k[9] * r4
     yd = y * radial + k[2] * (r2 + 2 * y * y) + k[3] * xy2 + k[10] * r2 + k[11] * r4
-    if tilt and (k[12] or k[13]):
-        xd, yd = _homography(_tilt_matrix(k[12], k[13]), xd, yd)
+    return xd, yd
+
+
+def _distort(k: np.ndarray, x: np.ndarray, y: np.ndarray):
+    """OpenCV's lens map of normalised (...) x, y with the (14,) coefficients ``k``, tilt included.
+
+    Points far outside the field (|x| ~ 1e50, at the camera plane) overflow to inf or NaN
+    pixels rather than warn: no lens model holds there."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        xd, yd = lens_map(k, x, y)
+    if k[12] or k[13]:
+        xd, yd = _homography(tilt_matrix(k[12], k[13]), xd, yd)
     return xd, yd
 
 
@@ -86,8 +101,11 @@ def _homography(t: np.ndarray, x: np.ndarray, y: np.ndarray):
     return (t[0, 0] * x + t[0, 1] * y + t[0, 2]) * w, (t[1, 0] * x + t[1, 1] * y + t[1, 2]) * w
 
 
-def _jacobian(k: np.ndarray, x: np.ndarray, y: np.ndarray):
-    """d(x'', y'')/d(x', y') of :func:`_distort` without the tilt: four (...) arrays a b / c d."""
+def lens_jacobian(k, x, y):
+    """d(x'', y'')/d(x', y') of :func:`lens_map`: four arrays a, b, c, d (the rows [a b; c d]).
+
+    Generic over the array type as :func:`lens_map` is.
+    """
     r2 = x * x + y * y
     num = 1 + r2 * (k[0] + r2 * (k[1] + r2 * k[4]))
     den = 1 + r2 * (k[5] + r2 * (k[6] + r2 * k[7]))
@@ -107,13 +125,13 @@ def _jacobian(k: np.ndarray, x: np.ndarray, y: np.ndarray):
 def _undistort(k: np.ndarray, xd: np.ndarray, yd: np.ndarray):
     """Newton inverse of :func:`_distort` (see :meth:`Camera.undistort_normalized`)."""
     if k[12] or k[13]:
-        xd, yd = _homography(np.linalg.inv(_tilt_matrix(k[12], k[13])), xd, yd)
+        xd, yd = _homography(np.linalg.inv(tilt_matrix(k[12], k[13])), xd, yd)
     x, y = xd.copy(), yd.copy()
     done = ~(np.isfinite(x) & np.isfinite(y))
     with np.errstate(all="ignore"):
         for _ in range(UNDISTORT_MAX_ITER):
-            fx, fy = _distort(k, x, y, tilt=False)
-            a, b, c, d = _jacobian(k, x, y)
+            fx, fy = lens_map(k, x, y)
+            a, b, c, d = lens_jacobian(k, x, y)
             det = a * d - b * c
             sx = np.where(done, 0.0, (d * (fx - xd) - b * (fy - yd)) / det)
             sy = np.where(done, 0.0, (a * (fy - yd) - c * (fx - xd)) / det)
@@ -121,7 +139,7 @@ def _undistort(k: np.ndarray, xd: np.ndarray, yd: np.ndarray):
             done |= np.hypot(sx, sy) < UNDISTORT_STEP
             if done.all():
                 break
-        fx, fy = _distort(k, x, y, tilt=False)
+        fx, fy = lens_map(k, x, y)
         ok = done & (np.hypot(fx - xd, fy - yd) < 1e-12) & (det > 0)
     return np.where(ok, x, np.nan), np.where(ok, y, np.nan)
 
@@ -228,7 +246,7 @@ class Camera:
         folds the image when dr_d/dr <= 0 (or the denominator vanishes) before r_d reaches r_dc.
         Tangential, thin-prism and tilt terms are not part of this check.
         """
-        k = _coefficients(self.distortion)
+        k = full_coefficients(self.distortion)
         corners = np.array([[-0.5, -0.5], [self.width_px - 0.5, -0.5], [-0.5, self.height_px - 0.5],
                             [self.width_px - 0.5, self.height_px - 0.5]])
         rdc = np.hypot((corners[:, 0] - self.cx_px) / self.fx_px,
@@ -324,7 +342,7 @@ class Camera:
 
     def distort_normalized(self, x, y) -> tuple[np.ndarray, np.ndarray]:
         """OpenCV's distortion of ideal normalised coordinates (...), (...) -> distorted (...), (...)."""
-        return _distort(_coefficients(self.distortion), np.asarray(x, dtype=np.float64),
+        return _distort(full_coefficients(self.distortion), np.asarray(x, dtype=np.float64),
                         np.asarray(y, dtype=np.float64))
 
     def undistort_normalized(self, xd, yd) -> tuple[np.ndarray, np.ndarray]:
@@ -335,7 +353,7 @@ class Camera:
         :data:`UNDISTORT_STEP` (normalised units) or after :data:`UNDISTORT_MAX_ITER` steps.
         Points that do not converge (outside the region where the map is one to one) are NaN.
         """
-        return _undistort(_coefficients(self.distortion), np.asarray(xd, dtype=np.float64),
+        return _undistort(full_coefficients(self.distortion), np.asarray(xd, dtype=np.float64),
                           np.asarray(yd, dtype=np.float64))
 
     def undistort_px(self, pixels_px) -> np.ndarray:

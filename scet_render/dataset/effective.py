@@ -19,6 +19,7 @@ manifest as ``scene.differs``, so that readers can warn).
 from __future__ import annotations
 
 import logging
+import math
 import numbers
 import re
 from dataclasses import fields, is_dataclass
@@ -67,12 +68,19 @@ class EffectiveScene(NamedTuple):
 #: Setup fields added after datasets were first written, with the value that reproduces the
 #: older setups: a field at that value is left out of the fingerprint, so that datasets
 #: rendered before it existed (byte-identical frames) still resume and compare equal.
-_LATER_FIELDS = {("Eye", "cornea_asphericity"): 0.0, ("Setup", "eyelids"): None}
+_LATER_FIELDS = {("Eye", "cornea_asphericity"): 0.0, ("Setup", "eyelids"): None,
+                 ("Camera", "distortion"): (), ("Camera", "f_number"): None,
+                 ("Camera", "focus_distance_m"): None, ("Camera", "pixel_pitch_m"): None}
 
 
 def _at_older_value(obj, name: str) -> bool:
     key = (type(obj).__name__, name)
-    return key in _LATER_FIELDS and getattr(obj, name) == _LATER_FIELDS[key]
+    if key not in _LATER_FIELDS:
+        return False
+    value = getattr(obj, name)
+    if isinstance(value, np.ndarray):  # the pinhole's empty distortion
+        return value.size == 0 and _LATER_FIELDS[key] == ()
+    return value == _LATER_FIELDS[key]
 
 
 def plain_value(x):
@@ -163,9 +171,27 @@ def _rewrite(lines: list[str], table: str, values: dict[str, object],
     kept = [line for i, line in enumerate(body) if i not in set(hits)]
     at -= sum(1 for i in hits if i < at)
     new = [f"{key} = {_toml_value(v)}  # overridden" for key, v in values.items()]
-    if not new:
+    if not new and not hits:
         return lines
     return lines[:start + 1] + kept[:at] + new + kept[at:] + lines[stop:]
+
+
+def _lens_values(cam) -> dict:
+    """The ``[camera]`` lens keys that load into exactly ``cam``'s lens."""
+    values = {}
+    if cam.has_distortion:
+        values["distortion"] = [float(v) for v in cam.distortion]
+    if cam.f_number is not None:
+        values["f_number"] = cam.f_number
+        values["focus_distance_m"] = cam.focus_distance_m
+    if cam.pixel_pitch_m is not None:
+        um = cam.pixel_pitch_m * 1e6  # the loader multiplies by 1e-6: find the float it maps back
+        for _ in range(8):
+            if um * 1e-6 == cam.pixel_pitch_m:
+                break
+            um = math.nextafter(um, math.inf if um * 1e-6 < cam.pixel_pitch_m else -math.inf)
+        values["pixel_pitch_um"] = um
+    return values
 
 
 def _drop_table(lines: list[str], table: str) -> list[str]:
@@ -216,6 +242,10 @@ def effective_scene_text(setup: Setup, text: str) -> EffectiveScene:
             values["principal_point_px"] = [cam.cx_px, cam.cy_px]
         replaced = tuple(k for k in values if k != "focal_px") + (
             ("focal_px", "fx_px", "fy_px") if {"focal_px", "fx_px"} & set(values) else ())
+        lens = [(c.distortion, c.f_number, c.focus_distance_m, c.pixel_pitch_m) for c in (c0, cam)]
+        if plain_value(lens[0]) != plain_value(lens[1]):
+            replaced += ("distortion", "f_number", "focus_distance", "pixel_pitch")
+            values.update(_lens_values(cam))
         lines = _rewrite(lines, "camera", values, replaced)
     tables = {
         "sensor": {"total_lines": ("total_lines", "total_lines"),

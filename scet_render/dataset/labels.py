@@ -58,6 +58,7 @@ def frame_labels(setup: Setup, trajectory: Trajectory, frame: int, bands=None) -
     yaw, pitch = trajectory.angles_at(time_s)
     target = trajectory.target_at(time_s)
     glints, visible, center = ground_truth_glints(setup, yaw, pitch)
+    glints = setup.camera.distort_px(glints)  # through the lens, as Camera.project (pinhole: as is)
     lids = None
     if setup.eyelids is not None:
         closure = trajectory.lid_closure_at(time_s)
