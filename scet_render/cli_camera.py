@@ -38,9 +38,15 @@ def cmd_camera(args) -> int:
 
     from estimator.inputs import refuse_overwriting_inputs
     from estimator.lens import DEFAULT_BOARD, read_board
-    from estimator.lens.calibrate import calibrate_from_folder
+    from estimator.lens.calibrate import IMAGE_SUFFIXES, calibrate_from_folder
     from estimator.lens.camera_file import distortion_effect_px, write_camera_file
 
+    # A folder of rendered board frames (scet render --board): its frames/ and board.json.
+    if args.board is None and (args.dir / "board.json").is_file():
+        args.board = args.dir / "board.json"
+    if (args.dir / "frames").is_dir() and not any(
+            p.suffix.lower() in IMAGE_SUFFIXES for p in args.dir.iterdir()):
+        args.dir = args.dir / "frames"
     spec = DEFAULT_BOARD if args.board is None else read_board(args.board)
     if args.dir.is_dir():
         refuse_overwriting_inputs(args.out, [p for p in args.dir.iterdir() if p.is_file()])
@@ -67,10 +73,13 @@ def add_parsers(sub) -> None:
     p = sub.add_parser("camera", help="camera intrinsics and lens distortion from views of a "
                                       "printed ChArUco board (scet hardware board)")
     p.add_argument("action", choices=("calibrate",))
-    p.add_argument("dir", type=Path, help="folder of board images (.png, .jpg, .tif, ...)")
+    p.add_argument("dir", type=Path, help="folder of board images (.png, .jpg, .tif, ...), or "
+                                          "the folder scet render --board wrote (its frames/ "
+                                          "and board.json)")
     p.add_argument("--out", type=Path, required=True, help="camera file (camera.json)")
-    p.add_argument("--board", type=Path, help="board.json of the printed board (default: scet "
-                                              "hardware board's default, 11x8 of 2.5 mm)")
+    p.add_argument("--board", type=Path, help="board.json of the printed board (default: DIR's "
+                                              "board.json, else scet hardware board's default, "
+                                              "11x8 of 2.5 mm)")
     p.add_argument("--model", choices=("opencv5", "rational8"), default="opencv5",
                    help="distortion model: k1 k2 p1 p2 k3 (default) or the rational model's 8")
     p.add_argument("--min-views", type=integer(3, 10_000), default=8,

@@ -156,9 +156,32 @@ def board_from_doc(doc: Doc) -> BoardSpec:
         raise doc.error(exc.key, str(exc).split(": ", 1)[-1]) from None
 
 
+#: The ``board.json`` that ``scet render --board`` writes beside its frames
+#: (:mod:`scet_render.render.board`): its ``board`` object is read as the board.
+RENDERED_FORMAT, RENDERED_VERSION = "scet-board-frames", 1
+
+
+def _rendered_board(doc: Doc) -> BoardSpec:
+    b = doc.obj("board")
+    b.string("type", choices=("charuco",))
+    sx, sy = b.integers("squares", 2, lo=3, hi=100)
+    values = dict(squares_x=sx, squares_y=sy,
+                  square_mm=1e3 * b.number("square_m", lo=1e-4, hi=1.0),
+                  marker_mm=1e3 * b.number("marker_m", lo=1e-4, hi=1.0),
+                  dictionary=b.string("dictionary", choices=DICTIONARIES))
+    try:
+        return BoardSpec(**values)
+    except BoardError as exc:
+        raise b.error(exc.key, str(exc).split(": ", 1)[-1]) from None
+
+
 def read_board(path) -> BoardSpec:
-    """Read a ``board.json`` (:func:`write_board`); :class:`BoardError` naming the file and the
-    key for anything malformed."""
+    """Read a ``board.json``: a printed board's (:func:`write_board`, ``scet-board``) or that
+    of rendered board frames (``scet-board-frames``, :data:`RENDERED_FORMAT`);
+    :class:`BoardError` naming the file and the key for anything malformed."""
     data = read_json(path, BoardError)
+    if isinstance(data, dict) and data.get("format") == RENDERED_FORMAT:
+        check_format(data, path, RENDERED_FORMAT, RENDERED_VERSION, BoardError)
+        return _rendered_board(Doc(data, path, "", BoardError))
     check_format(data, path, BOARD_FORMAT, BOARD_VERSION, BoardError)
     return board_from_doc(Doc(data, path, "", BoardError))

@@ -194,7 +194,7 @@ def calibrate_views(views, spec: BoardSpec, size_px: tuple[int, int], *, model: 
         warnings.append(f"focal length uncertain: SD {sd[0]:.2f} / {sd[1]:.2f} px "
                         f"({100 * sd[0] / K[0, 0]:.2f} %); add tilted views")
     for msg in warnings:
-        log.warning("%s", msg)
+        log.info("%s", msg)  # the CLI prints them; a library caller reads .warnings
     per = np.asarray(per_view, dtype=np.float64).ravel()
     out_views = tuple({"file": v.name, "corners": int(v.ids.size), "rms_px": float(e),
                        "tilt_deg": float(t)} for v, e, t in zip(kept, per, tilts))

@@ -182,3 +182,19 @@ def test_board_json_round_trip_and_refusals(tmp_path):
 def test_a_camera_file_holds_only_opencv_lengths():
     with pytest.raises(CameraFileError):
         CameraFile(TRUE_K, [0.1, 0.2, 0.3], 640, 480)
+
+
+def test_the_board_of_rendered_board_frames_is_read(tmp_path):
+    """scet render --board writes a scet-board-frames board.json beside its frames; its board
+    is the board calibration reads (sides in metres there)."""
+    doc = {"format": "scet-board-frames", "version": 1,
+           "board": {"type": "charuco", "squares": [11, 8], "square_m": 3.0e-3,
+                     "marker_m": 2.25e-3, "dictionary": "DICT_4X4_50"}}
+    path = tmp_path / "board.json"
+    path.write_text(json.dumps(doc))
+    assert read_board(path) == BoardSpec(11, 8, 3.0, 2.25, "DICT_4X4_50")
+    doc["board"]["squares"] = [11]
+    path.write_text(json.dumps(doc))
+    with pytest.raises(BoardError) as exc:
+        read_board(path)
+    assert exc.value.key == "board.squares" and str(path) in str(exc.value)
