@@ -233,6 +233,9 @@ def register(sub) -> None:
     p.add_argument("--scene", required=True, help="the rig's scene")
     _capture_args(p, scene=False)
     p.add_argument("--calibration", type=Path, required=True)
+    p.add_argument("--camera", type=Path,
+                   help="camera file (scet camera calibrate): its intrinsics and lens distortion "
+                        "replace the scene's; detected glints are undistorted")
     p.add_argument("--samples", type=Path, required=True, help="samples CSV, written as they come")
     p.add_argument("--method", default="polynomial", choices=("polynomial", "geometric"))
     p.add_argument("--track-queue", type=integer(1, 64), default=2,

@@ -1,4 +1,5 @@
-"""`scet camera calibrate` and the `--camera` option of `scet calibrate` / `scet track`: a
+"""`scet camera calibrate` and the `--camera` option of `scet calibrate` / `scet track` /
+`scet run`: a
 camera.json from synthetic board views (tests/estimator/board_images.py), and every refusal one
 line with exit status 2 naming the file (and key)."""
 
@@ -73,7 +74,9 @@ def test_the_camera_option_checks_the_file(tmp_path, capsys):
     for cmd in (["track", str(folder), "--scene", "paper_sim", "--calibration", "x.json",
                  "--out", str(tmp_path / "s.csv")],
                 ["calibrate", str(folder), "--scene", "paper_sim", "--out",
-                 str(tmp_path / "cal.json")]):
+                 str(tmp_path / "cal.json")],
+                ["run", "--scene", "paper_sim", "--out", str(tmp_path / "cap"), "--calibration",
+                 "x.json", "--samples", str(tmp_path / "s.csv"), "--replay", str(folder)]):
         assert main([*cmd, "--camera", str(cam)]) == 2
         _one_line_error(capsys, str(cam), "image_size_px", "800x600", "640x480")
     cam.write_text('{"format": "scet-camera", "version": 1, "K": [[1, 0], NaN]')
