@@ -64,7 +64,7 @@ def board_rects_mm(spec: BoardSpec) -> list[tuple[float, float, float, float]]:
 def _svg(spec: BoardSpec, rects, page_mm, origin_mm, caption: str) -> str:
     w, h = page_mm
     ox, oy = origin_mm
-    out = [f'<?xml version="1.0" encoding="UTF-8"?>',
+    out = ['<?xml version="1.0" encoding="UTF-8"?>',
            f'<svg xmlns="http://www.w3.org/2000/svg" width="{w:.3f}mm" height="{h:.3f}mm" '
            f'viewBox="0 0 {w:.3f} {h:.3f}">',
            f'<title>{caption}</title>',

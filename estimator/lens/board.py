@@ -140,8 +140,7 @@ def write_board(spec: BoardSpec, path) -> None:
 def board_from_doc(doc: Doc) -> BoardSpec:
     """A :class:`BoardSpec` from the object ``doc`` (a ``board.json`` or a camera file's
     ``board``); errors name the file and the key."""
-    kind = doc.string("kind", choices=("charuco",))
-    del kind
+    doc.string("kind", choices=("charuco",))
     if doc.boolean("legacy_pattern", required=False, default=False):
         raise doc.error("legacy_pattern", "the legacy ChArUco layout (OpenCV < 4.6) is not "
                                           "supported; print a board with scet hardware board")

@@ -1,11 +1,9 @@
-"""`scet camera calibrate` and the `--camera` option of `scet calibrate` / `scet track` /
-`scet run`: a
-camera.json from synthetic board views (tests/estimator/board_images.py), and every refusal one
-line with exit status 2 naming the file (and key)."""
+"""`scet camera calibrate` and the `--camera` option of `scet calibrate`, `scet track` and
+`scet run`: a camera.json from synthetic board views (tests/estimator/board_images.py), and
+every refusal one line with exit status 2 naming the file (and key)."""
 
 import json
 
-import numpy as np
 import pytest
 
 from estimator.lens import DEFAULT_BOARD, BoardSpec, read_camera_file, write_board
