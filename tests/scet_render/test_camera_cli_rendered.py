@@ -43,6 +43,7 @@ def test_rendered_boards_calibrate_the_lens(tmp_path, capsys):
     d = distortion_difference_px(K, truth["distortion"], cam.K, cam.distortion, 640, 480)
     assert d.max() < DISTORTION_PX
     assert not any("coverage" in w for w in cam.warnings)
-    # A pinhole in the calibration's place misses the lens by pixels: the check can fail.
-    assert np.sqrt(np.mean(distortion_difference_px(K, truth["distortion"], cam.K, np.zeros(5),
-                                                    640, 480) ** 2)) > 1.0
+    # A pinhole in the calibration's place misses the lens by pixels (3.8 px at the corners,
+    # 0.95 px RMS, after the homography): the check can fail.
+    assert distortion_difference_px(K, truth["distortion"], cam.K, np.zeros(5), 640,
+                                    480).max() > 2.0
