@@ -100,7 +100,11 @@ class Tracker:
     Attributes
     ----------
     context : BandContext
-        What every band step shares (setup, calibration, fit problems, matcher, follower).
+        What every band step shares (setup, calibration, fit problems, matcher, follower). Its
+        setup's camera is the ideal pinhole of the given one (:func:`estimator.lens.ideal_setup`):
+        detections are undistorted through :attr:`lens_camera` before anything else sees them.
+    lens_camera : Camera
+        The given setup's camera, lens distortion included.
     state : StreamState
         The stream's state after the last band (immutable; each band step returns the next).
     detector : GlintDetector

@@ -161,16 +161,23 @@ def optics_verdict(rows, findings, rows_again, msetup, cm, rm, track, radiance, 
     positions, target = _pairs(cm, rm, msetup.camera)
     blur = next(r for r in rows if r.quantity.startswith("glint spot size"))
     quad = blur.difference
-    best = None
-    for way in (OPTICS, AFTER_SENSOR):
-        sigma = _fit_sigma(way, target, positions, radiance, renders, est, seed, full)
+    tol = TOL["blur"].value
+    sigmas = {OPTICS: _fit_sigma(OPTICS, target, positions, radiance, renders, est, seed, full)}
+    # Within tolerance (an unperturbed capture) nothing is blamed on the blur: the blurred
+    # renders are not tracked and measured again.
+    ways = (OPTICS, AFTER_SENSOR) if sigmas[OPTICS] > tol else ()
+    best = (OPTICS, sigmas[OPTICS], {})
+    for way in ways:
+        sigma = sigmas.get(way)
+        if sigma is None:
+            sigma = _fit_sigma(way, target, positions, radiance, renders, est, seed, full)
         imgs = _blurred(way, sigma, radiance, renders, est, seed, full)
         samples = track(imgs)
         rm_b = {f: measure_image(msetup, imgs[f], f,
                                  [s for s in samples if s.frame_index == f], black_dn)
                 for f in imgs}
-        explained = _explained(rows, rows_again(rm_b), rm, rm_b) if sigma > 0 else {}
-        if best is None or len(explained) > len(best[2]):
+        explained = _explained(rows, rows_again(rm_b), rm, rm_b)
+        if len(explained) > len(best[2]) or (way == OPTICS and not best[2]):
             best = (way, sigma, explained)
     way, sigma, explained = best
     # The row's difference is the fitted blur (the quadrature of the medians where the capture's
@@ -178,7 +185,6 @@ def optics_verdict(rows, findings, rows_again, msetup, cm, rm, track, radiance, 
     diff = sigma if sigma > 0 else (quad if math.isfinite(quad) and quad < 0 else 0.0)
     if not math.isfinite(target):
         diff = math.nan
-    tol = TOL["blur"].value
     blur.difference = diff
     blur.passed = math.isfinite(diff) and abs(diff) <= tol
     blur.cause = "" if blur.passed else "optics"
