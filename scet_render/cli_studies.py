@@ -172,7 +172,8 @@ def cmd_study_lens(args) -> int:
     setup = load_scene(args.scene)
     bar, update = progress_bar(10, "condition", f"study lens {setup.name}")
     try:
-        text, _, _ = run_study(setup, spp=args.spp, seed=args.seed, progress=update)
+        text, _, _ = run_study(setup, spp=args.spp, seed=args.seed, poses=args.poses,
+                               progress=update)
     finally:
         bar.close()
     path = atomic_write(Path(args.report_dir) / "lens.md", text)
@@ -246,6 +247,7 @@ def add_parsers(sub) -> None:
                       help="scene file or built-in scene name (default: prototype_ov5647)")
     lens.add_argument("--spp", type=integer(1, 4096), default=16)
     lens.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
+    lens.add_argument("--poses", type=integer(1, 3), default=3, help="fixations per condition (1-3)")
     lens.add_argument("--report-dir", type=Path, default=Path("reports"))
     lens.set_defaults(func=cmd_study_lens)
 

@@ -171,7 +171,7 @@ def _rewrite(lines: list[str], table: str, values: dict[str, object],
     kept = [line for i, line in enumerate(body) if i not in set(hits)]
     at -= sum(1 for i in hits if i < at)
     new = [f"{key} = {_toml_value(v)}  # overridden" for key, v in values.items()]
-    if not new and not hits:
+    if not new and (not replaced or not hits):  # nothing to write, nothing to drop
         return lines
     return lines[:start + 1] + kept[:at] + new + kept[at:] + lines[stop:]
 

@@ -1,6 +1,7 @@
 """Physically based renders with Mitsuba 3: the variant (``backend``), the eye scene
 (``scene``, ``meshes``, ``export``), lids that follow the eye and their occlusion of glints
-(``lids``, ``occlusion``), the rolling-shutter strobe renderer (``rolling_shutter``),
+(``lids``, ``occlusion``), the rolling-shutter strobe renderer (``rolling_shutter``), the
+camera's lens (``lens``: distortion and thin-lens rays), calibration-board frames (``board``),
 which part of the eye each pixel sees (``regions``)
 and the OV5647 sensor model (``sensor``). Mitsuba is imported lazily.
 """
@@ -20,6 +21,7 @@ from .backend import (
     is_jit_variant,
     llvm_version,
 )
+from .board import CharucoSpec, board_poses, render_board, render_board_frames
 from .export import export_mitsuba
 from .layout import (
     CHANNEL_MODES,
@@ -40,6 +42,7 @@ from .layout import (
     SceneOptions,
     eye_layout,
 )
+from .lens import NEWTON_STEPS, LensRays, band_rays
 from .lids import (
     CLOSED_OVERLAP_RAD,
     LASH_ALBEDO,
@@ -96,5 +99,6 @@ __all__ = [
     "DEFAULT_ELECTRONS_PER_RADIANCE", "SensorModel", "UPPER_LID_GAP_M", "CLOSED_OVERLAP_RAD",
     "LASH_ALBEDO", "LID_MOVING_KEYS", "moving_lid_meshes", "lash_mesh", "lid_rotations_rad",
     "lid_transforms", "lid_transforms_m", "OCCLUDER_NAMES", "SPOT_SAMPLES", "GlintOcclusion",
-    "LidOccluder", "occluder_names", "mitsuba_mesh"
+    "LidOccluder", "occluder_names", "mitsuba_mesh", "LensRays", "band_rays", "NEWTON_STEPS",
+    "CharucoSpec", "board_poses", "render_board", "render_board_frames",
 ]

@@ -48,8 +48,9 @@ BOARD_NAME = "board.json"
 WHITE_ALBEDO, BLACK_ALBEDO, SURROUND_ALBEDO = 0.90, 0.05, 0.30
 #: 8-bit value of albedo 1 (white paper at 0.9 reads 211: headroom, no clipping).
 WHITE_DN = 235.0
-#: Texels per board square: 0.054 mm camera pixels at 35 mm (643 px) against 3 mm squares
-#: leave ~55 pixels a square at most; 200 texels keep the texture 4x finer than any pixel.
+#: Texels per board square: at the prototype's 23 mm a 643 px camera's pixel covers 0.036 mm
+#: and :func:`spec_for`'s squares are 1.3 mm, ~36 pixels; 200 texels keep the texture ~5x
+#: finer than a pixel (and the bilinear texture lookup below the pixel's box filter).
 TEXELS_PER_SQUARE = 200
 #: Rows rendered at once (bounds the Dr.Jit arrays to rows * width * spp lanes).
 ROWS_PER_CHUNK = 48
@@ -92,8 +93,8 @@ def spec_for(setup: Setup) -> CharucoSpec:
     a square (OpenCV's tutorial board's ratio)."""
     cam = setup.camera
     width_m = working_distance_m(setup) * cam.width_px / cam.fx_px
-    square = max(0.1e-3, round(0.6 * width_m / 11 / 0.1e-3) * 0.1e-3)
-    return CharucoSpec((11, 8), square, 0.75 * square)
+    tenths_mm = max(1, round(0.6 * width_m / 11 * 1e4))
+    return CharucoSpec((11, 8), tenths_mm / 1e4, 0.75 * tenths_mm / 1e4)
 
 
 def working_distance_m(setup: Setup) -> float:

@@ -8,6 +8,7 @@ interface and the same image in the limit of many samples, its glints noisier at
 
 from __future__ import annotations
 
+import logging
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -20,8 +21,9 @@ from .cornea_bsdf import CORNEA_BSDF_TYPE
 from .layout import SceneOptions
 from .scene import describe_scene
 
-# --------------------------------------------------------------------------- export
+log = logging.getLogger(__name__)
 
+# --------------------------------------------------------------------------- export
 
 _TAGS = {"scene": "scene", "path": "integrator", "perspective": "sensor", "independent": "sampler",
          "hdrfilm": "film", "box": "rfilter", "disk": "shape", "sphere": "shape", "ply": "shape",
@@ -102,6 +104,10 @@ def export_mitsuba(setup: Setup, out_dir: str | Path, options: SceneOptions | No
         The XML file.
     """
     options = SceneOptions(channels="grey") if options is None else options
+    if setup.camera.has_distortion or setup.camera.is_thin_lens:
+        log.warning("export-mitsuba: %s's lens (distortion, thin lens) is not written: Mitsuba's "
+                    "perspective sensor is a pinhole (SCET renders the lens with its own rays)",
+                    setup.name)
     desc = describe_scene(setup, options, spp=spp, yaw_rad=yaw_rad, pitch_rad=pitch_rad)
     import cv2
 

@@ -26,6 +26,8 @@ def region_labels(renderer, yaw_rad: float, pitch_rad: float) -> np.ndarray:
     idx = np.arange(W * H)
     film = mi.Point2f(mi.Float((idx % W + 0.5) / W), mi.Float((idx // W + 0.5) / H))
     ray, _ = es.sensor.sample_ray(0.0, 0.5, film, mi.Point2f(0.5, 0.5))
+    if renderer.lens is not None:  # the chief ray through the lens (the pupil's centre)
+        ray.o, ray.d = renderer.lens.rays(mi, film * mi.ScalarVector2f(W, H), mi.Point2f(0.5, 0.5))
     si = es.scene.ray_intersect(ray)
     shapes = {s.id(): s for s in es.scene.shapes()}
     on_cornea = si.shape == mi.ShapePtr(shapes["cornea"])

@@ -209,3 +209,16 @@ def test_lens_kernels_replay_with_mnee(mi, half):
     with_mnee = lit.render_rows(-0.12, 0.04, *rows, seed=9)[0]
     without = dark.render_rows(-0.12, 0.04, *rows, seed=9)[0]
     assert (with_mnee - without).sum() > 0.01 * with_mnee.sum()
+
+
+@pytest.mark.slow  # two eye scenes built: ~20-40 s on 2 loaded cores
+def test_thin_lens_chief_rays_are_the_pinholes(mi, half):
+    """The pupil's centre is the centre of projection: region_labels (chief rays) of a thin-lens
+    camera see exactly what the pinhole's pixel centres see."""
+    from scet_render.render import BandedRenderer, region_labels
+
+    cam = _lens_camera(half.camera, f_number=2.9, focus_distance_m=0.035, pixel_pitch_m=11.2e-6)
+    pin = region_labels(BandedRenderer(half, spp=1), -0.12, 0.04)
+    thin = region_labels(BandedRenderer(dataclasses.replace(half, camera=cam), spp=1), -0.12, 0.04)
+    assert (pin >= 0).mean() > 0.3
+    np.testing.assert_array_equal(thin, pin)

@@ -63,3 +63,11 @@ def test_one_condition_finds_its_glints():
                 poses=((0.0, 0.0),))
     assert r.labels > 10 and r.found > 0.3
     assert r.median_px < 0.5
+
+
+@pytest.mark.parametrize("poses", [0, 4, 2.0, True])
+def test_run_study_refuses_bad_pose_counts(proto, poses):
+    from scet_render.study.lens import run_study
+
+    with pytest.raises(ValueError, match="poses"):
+        run_study(proto, poses=poses)
