@@ -283,6 +283,47 @@ def compare_cornea_models(setup, frames, rounds: int) -> None:
         print(f"  sphere / conic: {np.median(ratio):.2f}x (rounds {ratio.min():.2f}-{ratio.max():.2f})")
 
 
+def compare_distortion(setup, frames, rounds: int, coefficients) -> None:
+    """samples/s of the tracker with the scene's camera given a lens distortion (detections
+    undistorted, :meth:`GlintDetections.undistorted`) against the pinhole, alternated over the
+    rounds on the same frames, and the undistortion's own cost per frame. The frames are the
+    pinhole's, so the given lens moves the glints off the model and may change the bands' path
+    (counts printed); a lens of k1 = 1e-12 takes the pinhole's path with the undistortion step:
+    its ratio is the step's cost alone."""
+    from estimator.lens import ideal_setup
+
+    lenses = {"pinhole": setup,
+              "undistort only (k1 = 1e-12)": replace(setup, camera=replace(
+                  setup.camera, distortion=[1e-12, 0.0, 0.0, 0.0])),
+              "lens": replace(setup, camera=replace(setup.camera, distortion=coefficients))}
+    cal = ground_truth_calibration(ideal_setup(setup))
+    rates, ok, counts = {k: [] for k in lenses}, {}, {}
+    for s in lenses.values():  # warm up (kernels, caches)
+        run(Tracker(s, cal, "polynomial"), frames[:3])
+    for _ in range(rounds):
+        for name, s in lenses.items():
+            tr = Tracker(s, cal, "polynomial")
+            samples, lat = run(tr, frames)
+            rates[name].append(len(samples) / lat.sum())
+            ok[name], counts[name] = sum(x.ok for x in samples), dict(tr.counts)
+    detector = GlintDetector(setup)
+    dets = [detector(img, f) for f, _, img in frames]
+    t = clock()
+    for _ in range(rounds):
+        for d in dets:
+            d.undistorted(lenses["lens"].camera)
+    per = (clock() - t) / (rounds * len(dets))
+    base = np.array(rates["pinhole"])
+    for name in lenses:
+        r = np.array(rates[name])
+        print(f"tracker polynomial, {name}: {np.median(r):.0f} samples/s (rounds {r.min():.0f}-"
+              f"{r.max():.0f}; / pinhole {np.median(r / base):.3f}x, rounds "
+              f"{(r / base).min():.3f}-{(r / base).max():.3f}), {ok[name]} estimated, bands "
+              f"{counts[name]['cheap']} cheap, {counts[name]['search']} searched")
+    print(f"  undistortion {1e6 * per:.1f} us per frame "
+          f"({np.mean([len(d) for d in dets]):.1f} glints), distortion {list(coefficients)}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=60)
@@ -300,6 +341,12 @@ def main(argv=None):
     ap.add_argument("--clock", choices=("wall", "cpu"), default="wall",
                     help="time by the wall clock (default) or by the process's CPU time (a "
                          "machine shared with other work: what the tracker costs one core)")
+    ap.add_argument("--distortion", nargs="?", const="-0.35,0.25,0.001,-0.0008,0",
+                    default=None, metavar="K1,K2,P1,P2[,K3...]",
+                    help="compare the tracker on the scene's camera with this OpenCV lens "
+                         "distortion (detections undistorted) against the pinhole (synthetic "
+                         "frames; default coefficients those of tests/estimator/"
+                         "test_camera_file_tracker.py)")
     args = ap.parse_args(argv)
     global clock
     clock = time.process_time if args.clock == "cpu" else time.perf_counter
@@ -341,6 +388,10 @@ def main(argv=None):
 
     if args.conic is not None:
         compare_cornea_models(setup, frames, args.rounds)
+        return
+    if args.distortion is not None:
+        compare_distortion(setup, frames, args.rounds,
+                           [float(v) for v in args.distortion.split(",")])
         return
     cal = ground_truth_calibration(setup)
     for method in ("polynomial", "geometric"):

@@ -48,6 +48,7 @@ from .cornea import check_conic
 from .formats import atomic_write
 from .gaze import fit_cornea_centers
 from .glints import NO_BAND, detect_glints
+from .lens import ideal_setup
 from .inputs import (
     BAD_TIMESTAMP,
     FolderTiming,
@@ -183,6 +184,8 @@ def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
     timing = read_timing(folder, setup)
     cal_setup = timing.apply(setup)
     check_single_pulse(folder, cal_setup, timing)
+    # Detections through the lens into its ideal image, which the calibration then works in.
+    lens, cal_setup = cal_setup.camera, ideal_setup(cal_setup)
     targets = read_targets(folder)
     matcher = GlintMatcher(cal_setup)
     n = cal_setup.lights.count
@@ -192,7 +195,7 @@ def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
             log.warning("calibration frame %d left out: %s", f, err or "no target in labels")
             continue
         try:
-            det = detect_glints(img, cal_setup, f)
+            det = detect_glints(img, cal_setup, f).undistorted(lens)
         except ValueError as exc:
             log.warning("calibration frame %d left out: %s", f, exc)
             continue

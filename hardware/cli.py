@@ -88,14 +88,42 @@ def cmd_strobe(args) -> int:
 
 
 
+def _board(args) -> int:
+    """``scet hardware board``: the printable ChArUco board and its board.json."""
+    from estimator.lens import BoardError, BoardSpec
+
+    from .board import write_printable_board
+
+    try:
+        sx, sy = (int(v) for v in args.squares.lower().split("x"))
+    except ValueError:
+        print(f"scet hardware board: error: --squares must be COLSxROWS (e.g. 11x8), got "
+              f"{args.squares!r}", file=sys.stderr)
+        return 2
+    try:
+        spec = BoardSpec(sx, sy, args.square_mm, args.marker_mm, args.dictionary)
+    except BoardError as exc:
+        print(f"scet hardware board: error: {exc}", file=sys.stderr)
+        return 2
+    out = write_printable_board(args.out or Path("out/board"), spec)
+    w, h = spec.size_mm
+    print(f"board {sx}x{sy} squares of {spec.square_mm:g} mm ({w:g} x {h:g} mm, markers "
+          f"{spec.marker_mm:g} mm, {spec.dictionary}, {spec.inner_corners} corners) written to "
+          f"{out['svg']} and {out['pdf']} (page {out['page_mm'][0]:g} x {out['page_mm'][1]:g} "
+          f"mm: print at 100 %); description {out['json']}")
+    return 0
+
+
 def cmd_hardware(args) -> int:
+    if args.action == "board":
+        return _board(args)
     if args.action == "mirror":
         from .mirror import MirrorParams, write_mirror
 
         p = MirrorParams(radius_mm=args.radius_mm, span_deg=args.span_deg, width_mm=args.width_mm,
                          thickness_mm=args.thickness_mm, turns=args.turns,
                          wire_diameter_mm=args.wire_mm)
-        out = write_mirror(args.out, p)
+        out = write_mirror(args.out or Path("out/mirror"), p)
         print(f"mirror written to {out['stl']} ({out['volume_mm3']:.0f} mm^3, watertight); "
               f"{p.turns} glint sources to {out['lights']}")
         return 0
@@ -205,20 +233,33 @@ def register(sub) -> None:
     p.add_argument("--scene", required=True, help="the rig's scene")
     _capture_args(p, scene=False)
     p.add_argument("--calibration", type=Path, required=True)
+    p.add_argument("--camera", type=Path,
+                   help="camera file (scet camera calibrate): its intrinsics and lens distortion "
+                        "replace the scene's; detected glints are undistorted")
     p.add_argument("--samples", type=Path, required=True, help="samples CSV, written as they come")
     p.add_argument("--method", default="polynomial", choices=("polynomial", "geometric"))
     p.add_argument("--track-queue", type=integer(1, 64), default=2,
                    help="frames waiting for the tracker before frames are skipped (default 2)")
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("hardware", help="the prototype's mirror (STL + light list) and settings plan")
-    p.add_argument("action", choices=("mirror", "plan"))
-    p.add_argument("--out", type=Path, default=Path("out/mirror"), help="mirror: output folder")
+    p = sub.add_parser("hardware", help="the prototype's mirror (STL + light list), settings "
+                                        "plan, and printable camera-calibration board")
+    p.add_argument("action", choices=("mirror", "plan", "board"))
+    p.add_argument("--out", type=Path, help="mirror, board: output folder (default out/mirror, "
+                                            "out/board)")
     p.add_argument("--radius-mm", type=finite(1.0, 1000.0), default=33.0)
     p.add_argument("--span-deg", type=finite(1.0, 360.0), default=90.0)
     p.add_argument("--width-mm", type=finite(0.01, 100.0), default=2.0)
     p.add_argument("--thickness-mm", type=finite(0.01, 100.0), default=1.5)
     p.add_argument("--turns", type=integer(1, 10_000), default=35)
     p.add_argument("--wire-mm", type=finite(0.01, 100.0), default=0.8)
+    # The default board suits 3-4 cm and 640x480 (estimator/lens/board.py says why).
+    p.add_argument("--squares", default="11x8", help="board: squares COLSxROWS (default 11x8)")
+    p.add_argument("--square-mm", type=finite(0.1, 1000.0), default=2.5,
+                   help="board: square side in mm (default 2.5: 46 px at 35 mm with the stock "
+                        "643 px lens)")
+    p.add_argument("--marker-mm", type=finite(0.1, 1000.0), default=1.8,
+                   help="board: marker side in mm (default 1.8)")
+    p.add_argument("--dictionary", default="DICT_4X4_50", help="board: ArUco dictionary")
     _plan_args(p)
     p.set_defaults(func=cmd_hardware)

@@ -250,6 +250,13 @@ def cmd_run(args) -> int:
     from .strobe import StrobeError
 
     setup = load_scene(args.scene)
+    if getattr(args, "camera", None) is not None:  # the lens calibrated by scet camera calibrate
+        from dataclasses import replace
+
+        from estimator.lens import camera_from_file, read_camera_file
+
+        setup = replace(setup, camera=camera_from_file(
+            setup.camera, read_camera_file(args.camera), args.camera))
     calibration, mapping = tracking_calibration(args.out, args.calibration, args.samples,
                                                 method=args.method, n_lights=setup.lights.count)
     tracker = Tracker(setup, calibration, args.method, mapping=mapping)

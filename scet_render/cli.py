@@ -14,6 +14,7 @@ import numpy as np
 
 from .cli_data import add_cluster_arguments, add_dataset_parsers, add_render_parser
 from .cli_progress import StageBars, print_table, progress_bar
+from .cli_camera import add_parsers as add_camera_parsers, camera_arg, with_camera_file
 from .cli_scene import describe_lens, folder_scene
 from .runner import MAX_FRAMES, MAX_SEED, MAX_SPP, finite, integer, run
 
@@ -174,7 +175,7 @@ def cmd_calibrate(args) -> int:
     from estimator.inputs import input_files, refuse_overwriting_inputs
 
     refuse_overwriting_inputs(args.out, input_files(args.dir))
-    setup = folder_scene(args.dir, args.scene, "scet calibrate")
+    setup = with_camera_file(folder_scene(args.dir, args.scene, "scet calibrate"), args.camera)
     cal = calibrate_from_folder(args.dir, setup, cornea_model=args.cornea_model)
     path = save_calibration(cal, args.out)
     q = cal.quality
@@ -227,7 +228,7 @@ def cmd_track(args) -> int:
     from estimator.folders import track_folder
     from estimator.live import track_following
 
-    setup = folder_scene(args.dir, args.scene, "scet track")
+    setup = with_camera_file(folder_scene(args.dir, args.scene, "scet track"), args.camera)
     cal = args.calibration  # the path: --out naming it is refused, errors name it
     bar, update = progress_bar(0, "frame", "track")
     try:
@@ -402,6 +403,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("dir", type=Path, help="folder of frames (frames/NNNNNN.png, labels.jsonl, timing)")
     p.add_argument("--scene", help=folder_scene_help)
     p.add_argument("--out", type=Path, required=True, help="calibration file (JSON)")
+    camera_arg(p)
     p.add_argument("--cornea-model", choices=("sphere", "conic"), default="sphere",
                    help="the tracker's cornea: the paper's sphere (default), or a conic about "
                         "the optical axis whose conic constant Q is calibrated too (recorded in "
@@ -413,6 +415,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scene", help=folder_scene_help)
     p.add_argument("--calibration", type=Path, required=True, help="calibration file from scet calibrate")
     p.add_argument("--method", choices=("polynomial", "geometric"), default="polynomial")
+    camera_arg(p)
     p.add_argument("--out", type=Path, required=True, help="samples CSV")
     p.add_argument("--events", type=Path, default=None,
                    help="also write the saccades and microsaccades found in the samples to this "
@@ -481,6 +484,7 @@ def build_parser() -> argparse.ArgumentParser:
     from scet_render.cli_studies import add_parsers
 
     add_parsers(sub)      # scet design-lights, scet study events
+    add_camera_parsers(sub)   # scet camera calibrate
     return ap
 
 

@@ -26,7 +26,7 @@ INSTALLED_AS = {"hardware": "scet_hardware"}
 LAYERS = {
     "estimator": [
         {"errors", "checks", "formats", "reasons"},
-        {"geometry"},
+        {"geometry", "lens"},
         {"eye", "setup"},
         {"eyelids", "lens_keys"},
         {"scene", "banding", "metrics"},
@@ -44,10 +44,10 @@ LAYERS = {
         {"simulate", "band_diagram"},
         {"dataset"},
         {"validate", "reproduce", "design", "study", "compare"},
-        {"cli", "cli_data", "cli_progress", "cli_scene", "cli_studies", "runner", "__main__"},
+        {"cli", "cli_data", "cli_progress", "cli_scene", "cli_studies", "cli_camera", "runner", "__main__"},
     ],
     "hardware": [
-        {"firmware", "mirror"},
+        {"firmware", "mirror", "board"},
         {"profiles", "strobe_protocol", "strobe", "lock", "capture"},
         {"cli", "cli_run"},
     ],

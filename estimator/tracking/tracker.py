@@ -44,6 +44,7 @@ from ..banding import band_rows, strobe_instant
 from ..calibration import Calibration
 from ..gaze import calibrated_problems
 from ..glints import NO_BAND, DetectionParams, GlintDetector
+from ..lens import ideal_setup
 from ..matching import BandFollower, FollowParams, GlintMatcher, MatchParams
 from ..reasons import Reason, flux_cut_failure, internal_error
 from ..setup import Setup
@@ -99,7 +100,11 @@ class Tracker:
     Attributes
     ----------
     context : BandContext
-        What every band step shares (setup, calibration, fit problems, matcher, follower).
+        What every band step shares (setup, calibration, fit problems, matcher, follower). Its
+        setup's camera is the ideal pinhole of the given one (:func:`estimator.lens.ideal_setup`):
+        detections are undistorted through :attr:`lens_camera` before anything else sees them.
+    lens_camera : Camera
+        The given setup's camera, lens distortion included.
     state : StreamState
         The stream's state after the last band (immutable; each band step returns the next).
     detector : GlintDetector
@@ -131,6 +136,10 @@ class Tracker:
             raise ValueError(f"flag_cut_glints needs a calibration with glint_flux for the "
                              f"{setup.lights.count} lights (recalibrate)")
         self.flags_cut_glints = fluxed if flag_cut_glints is None else bool(flag_cut_glints)
+        # A camera with lens distortion: detections are undistorted (process) and everything
+        # after them works in the ideal pinhole image of the same intrinsics.
+        self.lens_camera = setup.camera
+        setup = ideal_setup(setup)
         # Detection reuses the sensor's noise model from frame to frame (measured again every
         # 30 frames, on a 5 % level drift, and after every reset of the stream).
         self.detector = GlintDetector(setup, detection)
@@ -208,7 +217,9 @@ class Tracker:
                 self.reset()
                 return [failed_sample(frame_index, j, t, reason) for (j, _), t in zip(bands, times)]
             det = self.detector(frame, frame_index)
-            det = det.select(~det.has(NO_BAND))
+            # The one place detections enter the tracker's geometry: through the lens into the
+            # ideal pinhole image (a pinhole camera passes them on untouched).
+            det = det.select(~det.has(NO_BAND)).undistorted(self.lens_camera)
             glints, strobes, flux = det.glints_px, det.strobe_index, det.intensity
             flag = self.flags_cut_glints
             return [self.band(frame_index, self.of_strobe(glints, strobes, b[0]), b, t,

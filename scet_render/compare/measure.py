@@ -28,13 +28,21 @@ from estimator.geometry import project_glints
 from estimator.glints import detect_glints
 from estimator.setup import Setup
 
-__all__ = ["FrameMeasure", "measure_image", "GeometryFit",
+__all__ = ["FrameMeasure", "measure_image", "spot_sigma_px", "SPOT_RADIUS_PX", "GeometryFit",
            "fit_geometry", "gaze_differences_deg", "match_identified"]
 
 #: Detections smaller than this (px) are not counted as clutter: at a few spp a render's
 #: specular sparkle (Monte Carlo fireflies) gives ~10-30 one- and two-pixel spots a frame,
 #: different in every render.
 MIN_CLUTTER_AREA_PX = 3
+#: Half-width of the window a spot's size is measured in (px): 7 x 7 px, 2.2 σ of a spot of
+#: 1 px σ blurred by 1.2 px; spots with another detection nearer than twice it are not
+#: measured (the arcs of a 320x240 frame put glints 2.6-7.8 px apart, median 4.7).
+SPOT_RADIUS_PX = 3
+#: The background is the median of a ring around the window, from SPOT_RADIUS_PX + 2 to
+#: SPOT_RADIUS_PX + SPOT_RING_PX px out: outside a blurred spot (the window's own border
+#: rose with the blur, and the measured size then fell as the blur grew).
+SPOT_RING_PX = 4
 #: Fewest identified glints for a free-radius fit of one sample (4 unknowns, 2 rows a glint).
 MIN_RADIUS_GLINTS = 5
 #: Fewest samples a light must be seen in for its systematic offset.
@@ -71,10 +79,13 @@ def measure_image(setup: Setup, image, index: int, samples, black_dn: float) -> 
                           full_scale_dn=float(2 ** sensor.bit_depth - 1))
     if bands.status == "fit failed":
         bands = _bands_at_pitch(setup, profile, index, pitch, rise)
-    det = detect_glints(np.asarray(image), setup, index)
+    raw = detect_glints(np.asarray(image), setup, index)
+    # In the ideal image, as the tracker's samples are (a pinhole passes them on untouched).
+    det = raw.undistorted(setup.camera)
     used = np.concatenate([s.glints_px for s in samples if s.glints_px.size]) \
         if any(s.glints_px.size for s in samples) else np.zeros((0, 2))
     pts = np.stack([det.u_px, det.v_px], axis=1)
+    sigma = spot_sigma_px(img, raw.glints_px)
     big = det.area_px >= MIN_CLUTTER_AREA_PX
     identified = {}
     if used.size and pts.size:
@@ -87,7 +98,7 @@ def measure_image(setup: Setup, image, index: int, samples, black_dn: float) -> 
                 if dd <= 0.5:
                     identified[int(s.strobe_index), int(light)] = (
                         float(u), float(v), float(det.peak[k]), float(det.intensity[k]),
-                        float(det.area_px[k]))
+                        float(det.area_px[k]), float(sigma[k]))
     else:
         clutter = int(np.sum(big))
     lit = img < clip
@@ -103,6 +114,41 @@ def measure_image(setup: Setup, image, index: int, samples, black_dn: float) -> 
         if ok.any() else math.nan
     return FrameMeasure(index, profile, bands, det.u_px, det.v_px, det.area_px.astype(float),
                         det.peak, det.intensity, background, noise, clutter, identified)
+
+
+def spot_sigma_px(image, glints_px) -> np.ndarray:
+    """(k,) each glint spot's size: the RMS width along the rows (px) of its intensity above
+    the local background (:data:`SPOT_RING_PX`) in a (2 :data:`SPOT_RADIUS_PX` + 1)² window,
+    the square root of the second central moment; NaN for spots nearer than twice the window
+    to another detection or too near the frame's edge.
+
+    Along the rows only: the rolling shutter weights a spot's rows by the band's light (a glint
+    at a band's edge is cut), not its columns. A Gaussian blur of σ adds σ² to it (second
+    moments of a convolution add), so ``sqrt(capture² - render²)`` is the blur the capture
+    has beyond its render (:mod:`.optics`)."""
+    img = np.asarray(image, dtype=np.float64)
+    g = np.asarray(glints_px, dtype=np.float64).reshape(-1, 2)
+    out = np.full(g.shape[0], np.nan)
+    r, R = SPOT_RADIUS_PX, SPOT_RADIUS_PX + SPOT_RING_PX
+    H, W = img.shape
+    near = cKDTree(g).query(g, k=2)[0][:, 1] if g.shape[0] > 1 else np.full(g.shape[0], np.inf)
+    x = np.arange(-r, r + 1, dtype=np.float64)
+    dy, dx = np.mgrid[-R:R + 1, -R:R + 1]
+    ring = np.maximum(np.abs(dx), np.abs(dy)) >= r + 2
+    for i, (u, v) in enumerate(g):
+        cu, cv = int(round(u)), int(round(v))
+        if not (np.isfinite(u) and near[i] > 2 * r and R <= cu < W - R and R <= cv < H - R):
+            continue
+        big = img[cv - R:cv + R + 1, cu - R:cu + R + 1]
+        win = big[R - r:R + r + 1, R - r:R + r + 1]
+        w = (win - np.median(big[ring])).sum(axis=0)  # column profile above the background
+        tot = w.sum()
+        if tot <= 0:
+            continue
+        m = float((w * x).sum() / tot)
+        var = float((w * (x - m) ** 2).sum() / tot)
+        out[i] = math.sqrt(var) if var > 0 else np.nan
+    return out
 
 
 def _bands_at_pitch(setup: Setup, profile, index: int, pitch: float, rise: float):
@@ -136,11 +182,11 @@ def _bands_at_pitch(setup: Setup, profile, index: int, pitch: float, rise: float
 
 
 def match_identified(a: FrameMeasure, b: FrameMeasure):
-    """(a's, b's) (u, v, peak, energy, area) rows of the glints both runs identified as the
-    same light in the same band."""
+    """(a's, b's) (u, v, peak, energy, area, spot size) rows of the glints both runs
+    identified as the same light in the same band."""
     keys = sorted(set(a.identified) & set(b.identified))
     if not keys:
-        return np.zeros((0, 5)), np.zeros((0, 5))
+        return np.zeros((0, 6)), np.zeros((0, 6))
     return (np.array([a.identified[k] for k in keys]), np.array([b.identified[k] for k in keys]))
 
 

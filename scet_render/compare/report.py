@@ -19,6 +19,10 @@ def _fmt(v) -> str:
         return "-"
     if isinstance(v, (int, np.integer)):
         return str(int(v))
+    if isinstance(v, str):
+        return v
+    if isinstance(v, (list, tuple)):
+        return ", ".join(_fmt(x) for x in v) or "-"
     return f"{v:.4g}"
 
 

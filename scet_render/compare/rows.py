@@ -9,7 +9,7 @@ import numpy as np
 from .measure import match_identified
 from .verdict import row
 
-__all__ = ["verdict_rows"]
+__all__ = ["verdict_rows", "blur_row", "extra_blur_px"]
 
 
 def _circ(d, period):
@@ -79,8 +79,32 @@ def _band_rows(cm, rm):
                 _med(prof), "material")]
 
 
+def extra_blur_px(sigma_capture, sigma_render) -> float:
+    """The Gaussian blur σ (px) the capture's glint spots have beyond the render's: the square
+    root of the median over same-light pairs of σ_capture² - σ_render² (second moments of a
+    convolution add), negative when the render's spots are the larger; NaN without a pair."""
+    a, b = np.asarray(sigma_capture, dtype=np.float64), np.asarray(sigma_render, dtype=np.float64)
+    ok = np.isfinite(a) & np.isfinite(b)
+    if not ok.any():
+        return math.nan
+    d2 = float(np.median(a[ok] ** 2 - b[ok] ** 2))
+    return math.copysign(math.sqrt(abs(d2)), d2)
+
+
+def blur_row(sigma_capture, sigma_render):
+    """The verdict row of the glint spots' size: the capture's extra blur, cause the optics
+    (focus, aperture: :func:`~estimator.geometry.Camera.blur_diameter_px`)."""
+    a = _med(sigma_capture)
+    b = _med(sigma_render)
+    n = int(np.sum(np.isfinite(sigma_capture) & np.isfinite(sigma_render)))
+    return row("glints", "glint spot size, extra blur of the capture (px)", "blur", a, b,
+               extra_blur_px(sigma_capture, sigma_render), "optics",
+               f"RMS spot width along the rows, capture / render medians; {n} pairs")
+
+
 def _glint_rows(cm, rm):
     dist, peak, energy, area, unmatched, total = [], [], [], [], 0, 0
+    s_cap, s_ren = [], []
     for f in cm:
         a, b = match_identified(cm[f], rm[f])
         total += len(cm[f].identified)
@@ -89,6 +113,8 @@ def _glint_rows(cm, rm):
         peak.extend(a[:, 2] / np.maximum(b[:, 2], 1e-9))
         energy.extend(a[:, 3] / np.maximum(b[:, 3], 1e-9))
         area.extend(a[:, 4] / np.maximum(b[:, 4], 1e-9))
+        s_cap.extend(a[:, 5])
+        s_ren.extend(b[:, 5])
     bg = _ratio(_med([m.background_dn for m in cm.values()]),
                 _med([m.background_dn for m in rm.values()]))
     ns = _ratio(_med([m.noise_dn for m in cm.values()]), _med([m.noise_dn for m in rm.values()]))
@@ -99,6 +125,7 @@ def _glint_rows(cm, rm):
                 math.nan, _med(dist), "geometry", f"{len(dist)} pairs"),
             row("glints", "identified glints the render lacks (share)", "glints_matched",
                 unmatched, total, share, "geometry"),
+            blur_row(s_cap, s_ren),
             row("glints", "glint peak, capture / render - 1", "glint_peak", math.nan, math.nan,
                 _med(peak) - 1.0, "sensor"),
             row("glints", "glint energy, capture / render - 1", "glint_energy", math.nan,

@@ -11,7 +11,9 @@ Steps, for the first ``frames`` banded frames of a capture folder:
 4. render: the same frames at the measured timing and the tracked poses
    (:mod:`.render`), through the sensor model with the estimated black level and gain;
 5. the tracker and the measurements of :mod:`.measure` on both; the verdict rows of
-   :mod:`.verdict`, each with its tolerance.
+   :mod:`.verdict`, each with its tolerance;
+6. the optics (:mod:`.optics`): the capture's blur beyond the render's, fitted by blurring the
+   render; flagged rows that the blurred render explains are blamed on the optics.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from estimator.tracker import Tracker
 
 from .measure import fit_geometry, gaze_differences_deg, measure_image
 from .render import measured_setup, poses_from_samples, render_radiance
+from .optics import optics_verdict
 from .rows import verdict_rows
 from .sensor_fit import fit_sensor
 
@@ -252,6 +255,12 @@ def compare_capture(capture_dir, setup: Setup, *, calibration=None, method: str 
                                              for o in gc.light_offset_px]}
     rows, findings = verdict_rows(setup, msetup, timing, sensor, geometry, gc, gr, cm, rm, gaze,
                                   cap_samples, ren_samples)
+    rows, findings = optics_verdict(
+        rows, findings, lambda rm_b: verdict_rows(setup, msetup, timing, sensor, geometry, gc,
+                                                  gr, cm, rm_b, gaze, cap_samples,
+                                                  ren_samples)[0],
+        msetup, cm, rm, lambda imgs: _track(msetup, calibration, method, imgs, starts),
+        radiance, renders, est, seed, black_c)
     return CompareResult(capture_dir, setup, msetup, timing, sorted(images), images, renders, cm,
                          rm, cap_samples, ren_samples, sensor, geometry, gaze, rows, findings,
                          notes)
