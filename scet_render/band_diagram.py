@@ -190,3 +190,22 @@ def draw_band_diagram(
 
     fig.savefig(path, format="png")
     return path
+
+
+def band_glint_counts(setup, obs) -> list[dict]:
+    """For each visible band of frame 0 (`scet demo`): the rows it dominates and how many glints of each
+    target land there (which limits the samples one band can give)."""
+    from estimator.banding import NO_PULSE, row_strobe
+
+    pulse, _, _ = row_strobe(setup.sensor, setup.strobe, 0)
+    v = np.round(obs.glints_true_px[..., 1])
+    rows = []
+    for j in np.unique(pulse[pulse != NO_PULSE]):
+        lit = np.flatnonzero(pulse == j)
+        inside = obs.visible & (v >= lit[0]) & (v <= lit[-1])
+        counts = inside.sum(axis=1)
+        rows.append({"strobe": int(j), "rows": (int(lit[0]), int(lit[-1])),
+                     "glints_mean": float(counts.mean()), "glints_min": int(counts.min()),
+                     "share_none": float((counts == 0).mean()),
+                     "share_ge3": float((counts >= 3).mean())})
+    return rows

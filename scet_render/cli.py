@@ -293,27 +293,9 @@ def cmd_reproduce(args) -> int:
     return 0
 
 
-def band_glint_counts(setup, obs) -> list[dict]:
-    """For each visible band of frame 0: the rows it dominates and how many glints of each
-    target land there (which limits the samples one band can give)."""
-    from estimator.banding import NO_PULSE, row_strobe
-
-    pulse, _, _ = row_strobe(setup.sensor, setup.strobe, 0)
-    v = np.round(obs.glints_true_px[..., 1])
-    rows = []
-    for j in np.unique(pulse[pulse != NO_PULSE]):
-        lit = np.flatnonzero(pulse == j)
-        inside = obs.visible & (v >= lit[0]) & (v <= lit[-1])
-        counts = inside.sum(axis=1)
-        rows.append({"strobe": int(j), "rows": (int(lit[0]), int(lit[-1])),
-                     "glints_mean": float(counts.mean()), "glints_min": int(counts.min()),
-                     "share_none": float((counts == 0).mean()),
-                     "share_ge3": float((counts >= 3).mean())})
-    return rows
-
-
 def cmd_demo(args) -> int:
     from estimator.scene import load_scene
+    from scet_render.band_diagram import band_glint_counts
     from scet_render.simulate import glint_statistics, parse_targets, simulate_glints
 
     setup = load_scene(args.scene)
