@@ -187,9 +187,7 @@ def _exit_ray(state, x, w, eta):
 
     o = _mat(state, x) + state["t"]
     dl = _mat(state, w)
-    A = dr.dot(dl, dl)
-    B = dr.dot(o, dl)
-    C = dr.dot(o, o) - 1.0
+    A, B, C = dr.dot(dl, dl), dr.dot(o, dl), dr.dot(o, o) - 1.0
     disc = B * B - A * C
     t = (-B + dr.safe_sqrt(disc)) / A
     y = x + w * t
@@ -368,33 +366,38 @@ def mnee_lanes(mi, scene, ray_o, ray_d, u_light, u_point, state, lights, eta: fl
     nothing but the iris and pupil disks (the sclera's cap there is cut away), so the camera
     ray's path into it and the segment x -> y need no ray casts; one shadow ray checks that
     nothing covers the cornea in front of the camera (lids, lashes) and one that nothing
-    blocks y -> z. :func:`mnee_front` runs on every lane; with ``compact`` only the lanes that
-    reach the iris or pupil go on to :func:`mnee_back` (``dr.compress``: the solve costs nothing
-    where the camera sees skin), without it every lane runs it under a mask. The renderer's
-    frozen kernels take the masked form: a compaction's count changes with the pose, and
-    Dr.Jit 1.5 records (and compiles) a frozen function anew for each count.
+    blocks y -> z. With ``compact`` only the lanes :func:`mnee_front` finds on the iris or
+    pupil go on to :func:`mnee_back` (:func:`compact_lanes`; :mod:`.mnee_kernels` runs the
+    two as frozen kernels), without it every lane runs it under a mask.
     """
     import drjit as dr
 
-    front = mnee_front(mi, ray_o, ray_d, state, lights, eta)
+    front = mnee_front(mi, ray_o, ray_d, state, lights, eta, scene)
+    front["u_light"], front["u_point"] = u_light, u_point
     if not compact:
         hit = front.pop("hit")
-        return mnee_back(mi, scene, front, u_light, u_point, state, lights, eta, radiance, hit)
-    idx = dr.compress(front.pop("hit"))
-    lanes = {k: dr.gather(type(v), v, idx) for k, v in front.items()}
-    value = mnee_back(mi, scene, lanes, dr.gather(mi.Float, u_light, idx),
-                      dr.gather(mi.Point2f, u_point, idx), state, lights, eta, radiance)
+        return mnee_back(mi, scene, front, state, lights, eta, radiance, hit)
+    idx, lanes = compact_lanes(front)
     out = dr.zeros(mi.Float, dr.width(ray_o))
-    dr.scatter(out, value, idx)
+    dr.scatter(out, mnee_back(mi, scene, lanes, state, lights, eta, radiance), idx)
     return out
 
 
-def mnee_front(mi, ray_o, ray_d, state, lights, eta: float) -> dict:
+def compact_lanes(front: dict):
+    """The lanes of :func:`mnee_front`'s ``hit``: (their indices, the other entries there)."""
+    import drjit as dr
+
+    idx = dr.compress(front["hit"])
+    return idx, {k: dr.gather(type(v), v, idx) for k, v in front.items() if k != "hit"}
+
+
+def mnee_front(mi, ray_o, ray_d, state, lights, eta: float, scene=None) -> dict:
     """Step 1 on every lane: the camera ray's hit on the corneal cap (the quadric's near root),
     the refraction in, and the pupil or iris point it reaches (a grazing ray that leaves
-    through the cap again meets neither disk). Returns ``hit`` (mi.Bool) and the per-lane
-    inputs of :func:`mnee_back`: ``x``, ``on_pupil``, ``w_cam`` (the camera side's (1 - F) /
-    n^2), ``t0`` (the distance to the cap), and the rays ``o``, ``d``."""
+    through the cap again meets neither disk); with ``scene``, a shadow ray drops the lanes
+    whose way to the cornea is covered (lids, lashes, skin). Returns ``hit`` (mi.Bool) and the
+    per-lane inputs of :func:`mnee_back`: ``x``, ``on_pupil`` and ``w_cam`` (the camera
+    side's (1 - F) / n^2)."""
     import drjit as dr
 
     V64 = dr.float64_array_t(mi.Vector3f)
@@ -412,33 +415,33 @@ def mnee_front(mi, ray_o, ray_d, state, lights, eta: float) -> dict:
     d_in = d_cam * inv_eta + n0 * (inv_eta * cos0 - cos0_t)
     x_p, on_pupil = _plane_hit(state, y0, d_in, lights["pupil_offset_cm"], lights["pupil_cm"])
     x_i, on_iris = _plane_hit(state, y0, d_in, 0.0, lights["iris_cm"])
-    hit = (disc > 0) & (t0 > 0) & (cos0 > 0) & on_cap(state, y0) & (on_pupil | on_iris)
-    return {"hit": mi.Bool(hit), "x": dr.select(on_pupil, x_p, x_i),
-            "on_pupil": mi.Bool(on_pupil),
-            "w_cam": (1.0 - _fresnel(cos0, eta)) * inv_eta * inv_eta, "t0": t0,
-            "o": mi.Point3f(ray_o), "d": mi.Vector3f(ray_d)}
+    hit = mi.Bool((disc > 0) & (t0 > 0) & (cos0 > 0) & on_cap(state, y0) & (on_pupil | on_iris))
+    if scene is not None:
+        seen = mi.Ray3f(mi.Point3f(ray_o), dr.normalize(mi.Vector3f(ray_d)))
+        # Stop 1e-4 of the way short (~3 µm): float32 would find the cornea itself otherwise.
+        seen.maxt = mi.Float(t0 * (1.0 - 1e-4))
+        hit &= ~scene.ray_test(seen, hit)
+    return {"hit": hit, "x": dr.select(on_pupil, x_p, x_i), "on_pupil": mi.Bool(on_pupil),
+            "w_cam": (1.0 - _fresnel(cos0, eta)) * inv_eta * inv_eta}
 
 
-def mnee_back(mi, scene, lanes: dict, u_light, u_point, state, lights, eta: float,
-              radiance: float, active=True):
-    """Steps 2-5 (module docstring) on the lanes :func:`mnee_front` found on the iris or
-    pupil (or those of ``active``): the strobe radiance of each (mi.Float)."""
+def mnee_back(mi, scene, lanes: dict, state, lights, eta: float, radiance: float,
+              active=True):
+    """Steps 2-5 (module docstring) on the lanes :func:`mnee_front` found (or ``active``'s),
+    ``u_light`` (mi.Float) and ``u_point`` (mi.Point2f) choosing the light and the point on
+    it: the strobe radiance of each (mi.Float)."""
     import drjit as dr
 
     V64 = dr.float64_array_t(mi.Vector3f)
     F64 = dr.float64_array_t(mi.Float)
     x = lanes["x"]
-    seen = mi.Ray3f(lanes["o"], dr.normalize(lanes["d"]))
-    # Stop 1e-4 of the way short (~3 µm): float32 would find the cornea itself otherwise.
-    seen.maxt = mi.Float(lanes["t0"] * (1.0 - 1e-4))
     active = mi.Bool(active)
-    active &= ~scene.ray_test(seen, active)  # lids, lashes, skin in front of the cornea
     # 2. A light and a point on it.
     K = lights["count"]
-    k = dr.minimum(mi.UInt32(u_light * K), K - 1)
+    k = dr.minimum(mi.UInt32(lanes["u_light"] * K), K - 1)
     c = dr.gather(V64, lights["center"], k)
     r = dr.gather(F64, lights["radius"], k)
-    n_z = V64(mi.warp.square_to_uniform_sphere(u_point))
+    n_z = V64(mi.warp.square_to_uniform_sphere(lanes["u_point"]))
     z = c + n_z * r
     # 3.-4. The refraction point and the manifold's geometry term.
     sol = connect(state, x, z, eta)
@@ -491,7 +494,6 @@ def mnee_integrator(mi, eye_scene):
     return integrator
 
 
-__all__ = ["NEWTON_ITERATIONS", "connect", "light_table", "mnee_back", "mnee_front",
-           "mnee_integrator", "mnee_lanes",
-           "mnee_radiance",
-           "pose_state", "to_drjit", "on_cap"]
+__all__ = ["NEWTON_ITERATIONS", "compact_lanes", "connect", "light_table", "mnee_back",
+           "mnee_front", "mnee_integrator", "mnee_lanes", "mnee_radiance", "pose_state",
+           "to_drjit", "on_cap"]
