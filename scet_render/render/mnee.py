@@ -16,14 +16,13 @@ Estimation" (EGSR 2015) and Zeltner, Georgiev and Jakob, "Specular Manifold Samp
 2. A light k is picked uniformly and a point z on its sphere uniformly by area.
 3. The point y on the corneal surface where Snell's law joins x and z is solved by Newton's
    method on the direction w(a, b) = normalize(w0 + a u1 + b u2) leaving x (w0 = the direction
-   to z, the solution as n -> 1): the refracted ray from y(w) must pass through z. The residual
-   is the refracted ray's crossing of the plane through z normal to w0, in that plane's basis.
-   The solve runs in float64 with forward differences for the 2x2 Jacobian, from (a, b) = 0.
-4. The generalised geometry term (the manifold Jacobian) follows from the same 2x2 Jacobian J:
-   a patch da db of the parameters is a solid angle da db / |v|^3 at x (v = w0 + a u1 + b u2)
-   and an area |det J| da db on the plane through z, which is |w0 . d| / |n_z . d| times the
-   light's own area (d: the refracted direction). So per unit light area,
-   dOmega_x / dA_z = |n_z . d| / (|w0 . d| |det J| |v|^3); with n = 1 it is cos_z / |x - z|^2.
+   to z, the solution as n -> 1): the refracted ray from y(w) must pass through z. It starts
+   in float32 and ends in float64, with forward differences for the 2x2 Jacobian.
+4. The generalised geometry term (the manifold Jacobian): a patch da db of the parameters is a
+   solid angle da db / |v|^3 at x (v = w0 + a u1 + b u2) and an area |det C| da db on the
+   plane through z normal to the refracted direction d (C: :func:`connect`'s notes), which is
+   |n_z . d| times the light's own area. So per unit light area,
+   dOmega_x / dA_z = |n_z . d| / (|det C| |v|^3); with n = 1 it is cos_z / |x - z|^2.
 5. The light's radiance L enters the cornea as L (1 - F(y)) n^2, the diffuse BSDF at x weighs it
    with its cosine, and the visibility of z from y is a shadow ray (lids, lashes, skin).
 
@@ -48,19 +47,22 @@ import numpy as np
 
 from .layout import IRIS_OVERLAP, PUPIL_OFFSET_M, SCENE_UNITS_PER_M
 
-#: Reverse-Snell steps that start the solve, then damped Newton iterations (connect's notes).
-#: On 200 random pairs of iris points and paper_sim lights (tests/scet_render/test_mnee.py),
-#: the damped Newton alone from the n = 1 direction reached 140 of the 179 pairs the light-side
-#: reference reaches (missing 6 % of their irradiance: steep exits start totally reflected);
-#: 2 / 4 / 8 / 12 start steps then 10 iterations reach 169 / 171 / 177 / 178 of them (missing
-#: 0.12 % / 0.06 % / 0.013 % / 0.002 %); with 12 start steps, 3 iterations do as well as 10.
+#: The solve (connect's notes): reverse-Snell start steps and Newton iterations in float32,
+#: then in float64. Of 400 random pairs of iris points and paper_sim lights (test_mnee.py;
+#: sphere / conic q = -0.25) the light-side reference reaches 344 / 341; the float64 solve
+#: before (12 steps, 4 iterations with a line search: 39 traces) 342 / 341 (missing 7e-5 / 0
+#: of their irradiance); these 12 / 2 / 1 (25 traces, 19 in float32) 339 / 341 (missing
+#: 4.4e-4 / 0), as accurate (1.3e-5 / 1.5e-5); 8 / 16 steps: test_mnee's 200 173 / 179 of 179.
 START_STEPS = 12
-NEWTON_ITERATIONS = 4
+NEWTON_ITERATIONS_F32 = 2
+NEWTON_ITERATIONS = 1
 #: Largest Newton step in the direction parameters (a, b ~ tangents of the angle from w0).
 MAX_STEP = 0.25
-#: Forward-difference step of the Jacobian, in the direction parameters (a, b) (float64: the
-#: truncation error, ~h times the map's curvature, is ~1e-7 of J).
+#: Forward-difference step of the Jacobian in the direction parameters (a, b): float64, the
+#: truncation error (~h times the map's curvature) is ~1e-7 of J; float32, rounding ~1e-7 / h
+#: and truncation ~h leave J good to ~1e-3, enough for Newton.
 JACOBIAN_STEP = 1e-7
+JACOBIAN_STEP_F32 = 1e-3
 #: A converged solve leaves the refracted ray this close to the light point (scene units, cm):
 #: 1e-6 cm = 10 nm, far below the 0.2 mm light and far above the float64 solve's floor.
 CONVERGED_CM = 1e-6
@@ -179,35 +181,78 @@ def _basis(w):
     return u1, u2
 
 
-def _exit_ray(state, x, w, eta):
-    """From ``x`` inside the cornea along unit ``w``: the exit point y, its outward normal, the
-    refracted direction d (unit) into air, cos of incidence inside, and a validity mask (the
-    quadric is left, no total internal reflection)."""
+def _trace(state, x, w0, u1, u2, a, b, eta):
+    """From ``x`` inside the cornea along w = normalize(v), v = w0 + a u1 + b u2: the exit
+    point y, its outward normal, the refracted direction d (unit) into air, cos of incidence
+    inside, v, and a validity mask (the quadric is left, no total internal reflection)."""
     import drjit as dr
 
+    v = w0 + u1 * a + u2 * b
+    w = dr.normalize(v)
     o = _mat(state, x) + state["t"]
     dl = _mat(state, w)
     A, B, C = dr.dot(dl, dl), dr.dot(o, dl), dr.dot(o, o) - 1.0
     disc = B * B - A * C
     t = (-B + dr.safe_sqrt(disc)) / A
-    y = x + w * t
     n = _normal(state, o + dl * t)
     cos_i = dr.dot(w, n)
     sin2_t = eta * eta * (1.0 - cos_i * cos_i)
     cos_t = dr.safe_sqrt(1.0 - sin2_t)
     d = w * eta - n * (eta * cos_i - cos_t)
     valid = (disc > 0) & (t > 0) & (cos_i > 0) & (sin2_t < 1.0)
-    return y, n, d, cos_i, valid
+    return x + w * t, n, d, cos_i, v, valid
 
 
-def _trace(state, x, w0, u1, u2, a, b, eta):
-    """The path of direction parameters (a, b) from x: :func:`_exit_ray` of
-    w = normalize(w0 + a u1 + b u2), and v = w0 + a u1 + b u2."""
+def _start(state, x, z, eta, w0, u1, u2, a, b, steps: int):
+    """Reverse-Snell steps: where the ray leaves, the inside direction that refracts toward z
+    (never totally reflected), from x again. Returns (a, b) and the trace."""
     import drjit as dr
 
-    v = w0 + u1 * a + u2 * b
-    y, n, d, cos_i, valid = _exit_ray(state, x, dr.normalize(v), eta)
-    return y, n, d, cos_i, v, valid
+    tr = _trace(state, x, w0, u1, u2, a, b, eta)
+    for _ in range(steps):
+        y, n = tr[0], tr[1]
+        t = dr.normalize(z - y)
+        cos_out = dr.dot(t, n)
+        cos_in = dr.safe_sqrt(1.0 - (1.0 - cos_out * cos_out) / (eta * eta))
+        w_s = (t + n * (eta * cos_in - cos_out)) / eta
+        along = dr.dot(w_s, w0)
+        ok = along > 0.1  # y and n exist for any x inside the quadric
+        a = dr.select(ok, dr.dot(w_s, u1) / along, a)
+        b = dr.select(ok, dr.dot(w_s, u2) / along, b)
+        tr = _trace(state, x, w0, u1, u2, a, b, eta)
+    return a, b, tr
+
+
+def _jacobian(state, x, z, eta, w0, u1, u2, a, b, tr, h):
+    """The miss e (the refracted direction less the direction to z, in a basis normal to the
+    latter) at (a, b) and its forward-difference Jacobian (e1, e2, j11, j12, j21, j22)."""
+    import drjit as dr
+
+    q1, q2 = _basis(dr.normalize(z - tr[0]))
+    e1, e2 = (dr.dot(tr[2] - dr.normalize(z - tr[0]), q) for q in (q1, q2))
+    j = []
+    for da, db in ((h, 0.0), (0.0, h)):
+        y, _, d, _, _, _ = _trace(state, x, w0, u1, u2, a + da, b + db, eta)
+        e = d - dr.normalize(z - y)
+        j += [(dr.dot(e, q1) - e1) / h, (dr.dot(e, q2) - e2) / h]
+    return e1, e2, j[0], j[2], j[1], j[3]
+
+
+def _newton(state, x, z, eta, w0, u1, u2, a, b, tr, h, iterations: int):
+    """Newton iterations on the miss, each step at most MAX_STEP: (a, b) and the trace."""
+    import drjit as dr
+
+    for _ in range(iterations):
+        e1, e2, j11, j12, j21, j22 = _jacobian(state, x, z, eta, w0, u1, u2, a, b, tr, h)
+        det = j11 * j22 - j12 * j21
+        inv = dr.select(dr.abs(det) > 0, 1.0 / det, 0.0)
+        da = inv * (j22 * e1 - j12 * e2)
+        db = inv * (j11 * e2 - j21 * e1)
+        step = dr.sqrt(da * da + db * db)
+        shrink = dr.select(step > MAX_STEP, MAX_STEP / dr.maximum(step, 1e-30), 1.0)
+        a, b = a - da * shrink, b - db * shrink
+        tr = _trace(state, x, w0, u1, u2, a, b, eta)
+    return a, b, tr
 
 
 def connect(state, x, z, eta, iterations: int = NEWTON_ITERATIONS, h: float = JACOBIAN_STEP):
@@ -233,81 +278,43 @@ def connect(state, x, z, eta, iterations: int = NEWTON_ITERATIONS, h: float = JA
 
     Notes
     -----
-    Newton's method runs on the angle between the refracted ray and the direction to z, in a
-    basis normal to the latter (bounded and smooth even where the ray leaves near grazing),
-    each step damped to a quarter where the full one does not lower the miss or leaves the
-    quadric. The geometry term comes from one more Jacobian at the solution: of where the
-    refracted ray crosses the plane through z normal to d (step 4 of the module docstring).
+    The start (:data:`START_STEPS` reverse-Snell steps: from the n = 1 direction alone a steep
+    exit is often totally reflected) and :data:`NEWTON_ITERATIONS_F32` Newton iterations run
+    in float32 (twice the SIMD width: 1.8 times faster a step, measured), then ``iterations``
+    in float64. Newton runs on the angle between the refracted ray and the direction to z, in
+    a basis normal to the latter (bounded and smooth even where the ray leaves near grazing).
+    The geometry term (step 4 of the module docstring) needs the Jacobian C of where the ray
+    crosses the plane through z normal to d: at the solution a change de of that angle moves
+    the crossing by L de (L = |z - y|), so |det C| = L^2 |det J|, J from one more Jacobian.
     """
     import drjit as dr
 
-    w0 = dr.normalize(z - x)
+    V32 = dr.float32_array_t(type(x))
+    s32 = {k: (V32 if dr.size_v(v) == 3 else dr.float32_array_t(type(v)))(v)
+           for k, v in state.items()}
+    x32, z32 = V32(x), V32(z)
+    w0 = dr.normalize(z32 - x32)
     u1, u2 = _basis(w0)
     # Zeros of the inputs' width, derived from them: a frozen caller replays at any width.
-    a = x.x * 0.0
-    b = x.x * 0.0
-
-    def miss(a, b, q1, q2):
-        y, n, d, cos_i, v, valid = _trace(state, x, w0, u1, u2, a, b, eta)
-        e = d - dr.normalize(z - y)
-        return dr.dot(e, q1), dr.dot(e, q2), dr.select(valid, dr.squared_norm(e), math.inf)
-
-    y, n, d, cos_i, v, valid = _trace(state, x, w0, u1, u2, a, b, eta)
-    # Start: where the straight line leaves, the inside direction that refracts toward z
-    # (reverse Snell, never totally reflected), twice. From the n = 1 direction alone, a
-    # steep exit is often totally reflected and the damped steps cannot leave that region.
-    for _ in range(START_STEPS):
-        t = dr.normalize(z - y)
-        cos_out = dr.dot(t, n)
-        cos_in = dr.safe_sqrt(1.0 - (1.0 - cos_out * cos_out) / (eta * eta))
-        w_s = (t + n * (eta * cos_in - cos_out)) / eta
-        along = dr.dot(w_s, w0)
-        ok = along > 0.1  # y and n exist for any x inside the quadric
-        a = dr.select(ok, dr.dot(w_s, u1) / along, a)
-        b = dr.select(ok, dr.dot(w_s, u2) / along, b)
-        y, n, d, cos_i, v, valid = _trace(state, x, w0, u1, u2, a, b, eta)
-    for _ in range(iterations):
-        q1, q2 = _basis(dr.normalize(z - y))
-        e1, e2, m0 = miss(a, b, q1, q2)
-        ea1, ea2, _ = miss(a + h, b, q1, q2)
-        eb1, eb2, _ = miss(a, b + h, q1, q2)
-        j11, j21, j12, j22 = (ea1 - e1) / h, (ea2 - e2) / h, (eb1 - e1) / h, (eb2 - e2) / h
-        det = j11 * j22 - j12 * j21
-        inv = dr.select(dr.abs(det) > 0, 1.0 / det, 0.0)
-        da = inv * (j22 * e1 - j12 * e2)
-        db = inv * (j11 * e2 - j21 * e1)
-        step = dr.sqrt(da * da + db * db)
-        shrink = dr.select(step > MAX_STEP, MAX_STEP / dr.maximum(step, 1e-300), 1.0)
-        da, db = da * shrink, db * shrink
-        _, _, m_full = miss(a - da, b - db, q1, q2)
-        _, _, m_quarter = miss(a - 0.25 * da, b - 0.25 * db, q1, q2)
-        full = m_full < m0
-        quarter = ~full & (m_quarter < m0)
-        a = dr.select(full, a - da, dr.select(quarter, a - 0.25 * da, a))
-        b = dr.select(full, b - db, dr.select(quarter, b - 0.25 * db, b))
-        y, n, d, cos_i, v, valid = _trace(state, x, w0, u1, u2, a, b, eta)
-    angle = dr.norm(d - dr.normalize(z - y))
-    # The geometry term: where rays of nearby (a, b) cross the plane through z normal to d.
-    p1, p2 = _basis(d)
-
-    def crossing(a, b):
-        yy, _, dd, _, _, _ = _trace(state, x, w0, u1, u2, a, b, eta)
-        s = dr.dot(z - yy, d) / dr.dot(dd, d)
-        p = yy + dd * s - z
-        return dr.dot(p, p1), dr.dot(p, p2)
-
-    c1, c2 = crossing(a, b)
-    ca1, ca2 = crossing(a + h, b)
-    cb1, cb2 = crossing(a, b + h)
-    det = dr.abs((ca1 - c1) * (cb2 - c2) - (cb1 - c1) * (ca2 - c2)) / (h * h)
-    # dOmega_x = da db / |v|^3 and dA_perp = |det J| da db.
-    norm_v = dr.norm(v)
-    denom = det * norm_v * norm_v * norm_v
-    converged = angle * dr.norm(z - y) < CONVERGED_CM
-    return {"y": y, "n": n, "d": d, "w": dr.normalize(v), "cos_in": cos_i,
-            "cos_out": dr.dot(d, n),
+    a, b, tr = _start(s32, x32, z32, eta, w0, u1, u2, x32.x * 0.0, x32.x * 0.0, START_STEPS)
+    a, b, tr = _newton(s32, x32, z32, eta, w0, u1, u2, a, b, tr, JACOBIAN_STEP_F32,
+                       NEWTON_ITERATIONS_F32)
+    w = type(x)(dr.normalize(w0 + u1 * a + u2 * b))
+    w0 = dr.normalize(z - x)
+    u1, u2 = _basis(w0)
+    along = dr.dot(w, w0)
+    a, b = dr.dot(w, u1) / along, dr.dot(w, u2) / along
+    tr = _trace(state, x, w0, u1, u2, a, b, eta)
+    a, b, tr = _newton(state, x, z, eta, w0, u1, u2, a, b, tr, h, iterations)
+    y, n, d, cos_i, v, valid = tr
+    _, _, j11, j12, j21, j22 = _jacobian(state, x, z, eta, w0, u1, u2, a, b, tr, h)
+    L, norm_v = dr.norm(z - y), dr.norm(v)
+    # dOmega_x = da db / |v|^3 and dA_perp = L^2 |det J| da db.
+    denom = dr.abs(j11 * j22 - j12 * j21) * L * L * norm_v * norm_v * norm_v
+    converged = dr.norm(d - dr.normalize(z - y)) * L < CONVERGED_CM
+    return {"y": y, "n": n, "d": d, "w": dr.normalize(v), "cos_in": cos_i, "cos_out": dr.dot(d, n),
             "domega_dperp": dr.select(denom > 0, 1.0 / denom, 0.0),
-            "valid": valid & converged & (denom > 0)}
+            "valid": valid & converged & (denom > 0) & (along > 0.1)}
 
 
 def on_cap(state, p):
@@ -340,17 +347,15 @@ def mnee_radiance(mi, scene, sampler, ray, state, lights, eta: float, radiance: 
 
 
 def mnee_lanes(mi, scene, ray_o, ray_d, u_light, u_point, state, lights, eta: float,
-               radiance: float, compact: bool = True):
+               radiance: float):
     """The strobe radiance seen along camera rays through the cornea on the iris and pupil.
 
     Parameters
     ----------
     ray_o, ray_d : mi.Point3f, mi.Vector3f
         Camera rays (scene units), one per lane.
-    u_light : mi.Float
-        Uniform numbers choosing the light.
-    u_point : mi.Point2f
-        Uniform numbers choosing the point on it.
+    u_light, u_point : mi.Float, mi.Point2f
+        Uniform numbers choosing the light and the point on it.
     state, lights : dict
         :func:`to_drjit` of the pose and :func:`light_table` of the scene.
 
@@ -366,17 +371,14 @@ def mnee_lanes(mi, scene, ray_o, ray_d, u_light, u_point, state, lights, eta: fl
     nothing but the iris and pupil disks (the sclera's cap there is cut away), so the camera
     ray's path into it and the segment x -> y need no ray casts; one shadow ray checks that
     nothing covers the cornea in front of the camera (lids, lashes) and one that nothing
-    blocks y -> z. With ``compact`` only the lanes :func:`mnee_front` finds on the iris or
-    pupil go on to :func:`mnee_back` (:func:`compact_lanes`; :mod:`.mnee_kernels` runs the
-    two as frozen kernels), without it every lane runs it under a mask.
+    blocks y -> z. Only the lanes :func:`mnee_front` finds on the iris or pupil go on to
+    :func:`mnee_back` (:func:`compact_lanes`; :mod:`.mnee_kernels` runs the two as frozen
+    kernels).
     """
     import drjit as dr
 
     front = mnee_front(mi, ray_o, ray_d, state, lights, eta, scene)
     front["u_light"], front["u_point"] = u_light, u_point
-    if not compact:
-        hit = front.pop("hit")
-        return mnee_back(mi, scene, front, state, lights, eta, radiance, hit)
     idx, lanes = compact_lanes(front)
     out = dr.zeros(mi.Float, dr.width(ray_o))
     dr.scatter(out, mnee_back(mi, scene, lanes, state, lights, eta, radiance), idx)
@@ -386,7 +388,6 @@ def mnee_lanes(mi, scene, ray_o, ray_d, u_light, u_point, state, lights, eta: fl
 def compact_lanes(front: dict):
     """The lanes of :func:`mnee_front`'s ``hit``: (their indices, the other entries there)."""
     import drjit as dr
-
     idx = dr.compress(front["hit"])
     return idx, {k: dr.gather(type(v), v, idx) for k, v in front.items() if k != "hit"}
 
