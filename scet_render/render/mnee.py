@@ -33,10 +33,9 @@ cancel: they are kept to show where each belongs. Paths with further vertices in
 out: against converged path tracing with 1.5 mm lights, MNEE reads the iris 1.3-3.0 % darker
 (tests/scet_render/test_mnee.py).
 
-Everything moving is an opaque Dr.Jit input (:func:`pose_state`), so the frozen per-band
-kernels replay for every eye pose without recompiling. The numpy functions at the end are the
-independent references the tests check against: the same irradiance from the light's side, by
-power through a ray tube, and Gaussian optics on the axis (:mod:`.mnee_reference`).
+Everything moving is an opaque Dr.Jit input (:func:`pose_state`), so the frozen kernels
+(:mod:`.mnee_kernels`) replay for every eye pose without recompiling. The tests' independent
+references are in :mod:`.mnee_reference`.
 """
 
 from __future__ import annotations
@@ -47,15 +46,15 @@ import numpy as np
 
 from .layout import IRIS_OVERLAP, PUPIL_OFFSET_M, SCENE_UNITS_PER_M
 
-#: The solve (connect's notes): reverse-Snell start steps and Newton iterations in float32,
-#: then in float64. Of 400 random pairs of iris points and paper_sim lights (test_mnee.py;
-#: sphere / conic q = -0.25) the light-side reference reaches 344 / 341; the float64 solve
-#: before (12 steps, 4 iterations with a line search: 39 traces) 342 / 341 (missing 7e-5 / 0
-#: of their irradiance); these 12 / 2 / 1 (25 traces, 19 in float32) 339 / 341 (missing
-#: 4.4e-4 / 0), as accurate (1.3e-5 / 1.5e-5); 8 / 16 steps: test_mnee's 200 173 / 179 of 179.
-START_STEPS = 12
-NEWTON_ITERATIONS_F32 = 2
+#: The solve (connect's notes): extrapolated reverse-Snell steps and Newton iterations in
+#: float32, then float64. Of 400 random iris point / paper_sim light pairs (test_mnee.py,
+#: sphere / conic q = -0.25) the light-side reference reaches 344 / 341, the float64 solve
+#: before (39 traces) 342 / 341, these 10 / 1 / 1 (20 traces, 14 float32) 344 / 341, as
+#: accurately (1.3e-5 / 1.5e-5 at most, not grazing); 12 / 2 / 1 unextrapolated 339 / 341.
+START_STEPS = 10
+NEWTON_ITERATIONS_F32 = 1
 NEWTON_ITERATIONS = 1
+MAX_RATIO = 0.8  # the start steps' largest extrapolation ratio (a factor 5 at most)
 #: Largest Newton step in the direction parameters (a, b ~ tangents of the angle from w0).
 MAX_STEP = 0.25
 #: Forward-difference step of the Jacobian in the direction parameters (a, b): float64, the
@@ -106,8 +105,7 @@ def to_drjit(state: dict, mi) -> dict:
     """:func:`pose_state` as opaque width-1 float64 Dr.Jit variables (frozen-kernel inputs)."""
     import drjit as dr
 
-    F64 = dr.float64_array_t(mi.Float)
-    V64 = dr.float64_array_t(mi.Vector3f)
+    F64, V64 = dr.float64_array_t(mi.Float), dr.float64_array_t(mi.Vector3f)
 
     def vec(v):
         return V64(*(dr.opaque(F64, float(c)) for c in v))
@@ -125,8 +123,7 @@ def light_table(setup, options, layout, mi) -> dict:
     disks (``iris_cm``, ``pupil_cm`` radii, ``pupil_offset_cm`` in front of the iris, albedos)."""
     import drjit as dr
 
-    F64 = dr.float64_array_t(mi.Float)
-    V64 = dr.float64_array_t(mi.Vector3f)
+    F64, V64 = dr.float64_array_t(mi.Float), dr.float64_array_t(mi.Vector3f)
     p = np.asarray(setup.lights_world_m, dtype=np.float64) * SCENE_UNITS_PER_M
     r = np.array([g.source_radius_m for g in setup.lights.groups for _ in range(g.count)],
                  dtype=np.float64) * SCENE_UNITS_PER_M
@@ -204,21 +201,26 @@ def _trace(state, x, w0, u1, u2, a, b, eta):
 
 
 def _start(state, x, z, eta, w0, u1, u2, a, b, steps: int):
-    """Reverse-Snell steps: where the ray leaves, the inside direction that refracts toward z
-    (never totally reflected), from x again. Returns (a, b) and the trace."""
+    """Reverse-Snell steps (from where the ray leaves, the inside direction that refracts
+    toward z, never totally reflected); returns (a, b) and the trace there."""
     import drjit as dr
 
     tr = _trace(state, x, w0, u1, u2, a, b, eta)
+    pa = pb = None
     for _ in range(steps):
-        y, n = tr[0], tr[1]
-        t = dr.normalize(z - y)
+        n, t = tr[1], dr.normalize(z - tr[0])
         cos_out = dr.dot(t, n)
         cos_in = dr.safe_sqrt(1.0 - (1.0 - cos_out * cos_out) / (eta * eta))
         w_s = (t + n * (eta * cos_in - cos_out)) / eta
         along = dr.dot(w_s, w0)
         ok = along > 0.1  # y and n exist for any x inside the quadric
-        a = dr.select(ok, dr.dot(w_s, u1) / along, a)
-        b = dr.select(ok, dr.dot(w_s, u2) / along, b)
+        da = dr.select(ok, dr.dot(w_s, u1) / along - a, 0.0)
+        db = dr.select(ok, dr.dot(w_s, u2) / along - b, 0.0)
+        # Steps that shrink by a ratio r along a line (measured: those slow to converge) sum
+        # to 1 / (1 - r) times the step (Aitken); r from the last two, at most MAX_RATIO.
+        r = 0.0 if pa is None else (da * pa + db * pb) / dr.maximum(pa * pa + pb * pb, 1e-30)
+        g = 1.0 / (1.0 - dr.clip(r, 0.0, MAX_RATIO))
+        a, b, pa, pb = a + da * g, b + db * g, da * g, db * g
         tr = _trace(state, x, w0, u1, u2, a, b, eta)
     return a, b, tr
 
@@ -273,8 +275,7 @@ def connect(state, x, z, eta, iterations: int = NEWTON_ITERATIONS, h: float = JA
         ``y`` the refraction point, ``n`` its outward normal, ``d`` the direction from y to z,
         ``w`` the direction from x to y, ``cos_in`` / ``cos_out`` the cosines of the ray with
         the normal at y inside and outside, ``domega_dperp`` dOmega_x / dA on the plane normal
-        to d at z (multiply by |n_z . d| for the light's own area), ``valid`` (converged, on
-        the quadric, no total reflection).
+        to d at z (times |n_z . d|: per light area), ``valid`` (converged, no total reflection).
 
     Notes
     -----
@@ -290,8 +291,7 @@ def connect(state, x, z, eta, iterations: int = NEWTON_ITERATIONS, h: float = JA
     import drjit as dr
 
     V32 = dr.float32_array_t(type(x))
-    s32 = {k: (V32 if dr.size_v(v) == 3 else dr.float32_array_t(type(v)))(v)
-           for k, v in state.items()}
+    s32 = {k: dr.float32_array_t(type(v))(v) for k, v in state.items()}
     x32, z32 = V32(x), V32(z)
     w0 = dr.normalize(z32 - x32)
     u1, u2 = _basis(w0)
@@ -388,6 +388,7 @@ def mnee_lanes(mi, scene, ray_o, ray_d, u_light, u_point, state, lights, eta: fl
 def compact_lanes(front: dict):
     """The lanes of :func:`mnee_front`'s ``hit``: (their indices, the other entries there)."""
     import drjit as dr
+
     idx = dr.compress(front["hit"])
     return idx, {k: dr.gather(type(v), v, idx) for k, v in front.items() if k != "hit"}
 
@@ -398,11 +399,11 @@ def mnee_front(mi, ray_o, ray_d, state, lights, eta: float, scene=None) -> dict:
     through the cap again meets neither disk); with ``scene``, a shadow ray drops the lanes
     whose way to the cornea is covered (lids, lashes, skin). Returns ``hit`` (mi.Bool) and the
     per-lane inputs of :func:`mnee_back`: ``x``, ``on_pupil`` and ``w_cam`` (the camera
-    side's (1 - F) / n^2)."""
+    side's (1 - F) / n^2), in float32 (x is a sample point: ~1e-7 cm of rounding is noise)."""
     import drjit as dr
 
-    V64 = dr.float64_array_t(mi.Vector3f)
-    o_cam, d_cam = V64(ray_o), dr.normalize(V64(ray_d))
+    state = {k: dr.float32_array_t(type(v))(v) for k, v in state.items()}
+    o_cam, d_cam = mi.Vector3f(ray_o), dr.normalize(mi.Vector3f(ray_d))
     o = _mat(state, o_cam) + state["t"]
     dl = _mat(state, d_cam)
     A, B, C = dr.dot(dl, dl), dr.dot(o, dl), dr.dot(o, o) - 1.0
@@ -418,7 +419,7 @@ def mnee_front(mi, ray_o, ray_d, state, lights, eta: float, scene=None) -> dict:
     x_i, on_iris = _plane_hit(state, y0, d_in, 0.0, lights["iris_cm"])
     hit = mi.Bool((disc > 0) & (t0 > 0) & (cos0 > 0) & on_cap(state, y0) & (on_pupil | on_iris))
     if scene is not None:
-        seen = mi.Ray3f(mi.Point3f(ray_o), dr.normalize(mi.Vector3f(ray_d)))
+        seen = mi.Ray3f(mi.Point3f(ray_o), d_cam)
         # Stop 1e-4 of the way short (~3 µm): float32 would find the cornea itself otherwise.
         seen.maxt = mi.Float(t0 * (1.0 - 1e-4))
         hit &= ~scene.ray_test(seen, hit)
@@ -433,9 +434,8 @@ def mnee_back(mi, scene, lanes: dict, state, lights, eta: float, radiance: float
     it: the strobe radiance of each (mi.Float)."""
     import drjit as dr
 
-    V64 = dr.float64_array_t(mi.Vector3f)
-    F64 = dr.float64_array_t(mi.Float)
-    x = lanes["x"]
+    F64, V64 = dr.float64_array_t(mi.Float), dr.float64_array_t(mi.Vector3f)
+    x = V64(lanes["x"])
     active = mi.Bool(active)
     # 2. A light and a point on it.
     K = lights["count"]
@@ -456,9 +456,8 @@ def mnee_back(mi, scene, lanes: dict, state, lights, eta: float, radiance: float
     albedo = dr.select(lanes["on_pupil"], lights["pupil_albedo"], lights["iris_albedo"])
     f_cos = F64(albedo) * (1.0 / math.pi) * cos_x
     t_y = 1.0 - _fresnel(sol["cos_out"], eta)
-    geometry = sol["domega_dperp"] * facing
-    area = 4.0 * math.pi * r * r
-    value = f_cos * lanes["w_cam"] * t_y * (eta * eta) * geometry * area * (float(K) * radiance)
+    geometry, area = sol["domega_dperp"] * facing, 4.0 * math.pi * r * r
+    value = f_cos * F64(lanes["w_cam"]) * t_y * (eta * eta) * geometry * area * (K * radiance)
     return dr.select(active, mi.Float(value), 0.0)
 
 

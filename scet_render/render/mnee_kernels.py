@@ -70,7 +70,7 @@ class MneeKernels:
             def front(scene, sensor, row0, seed, lanes, state):
                 sampler, ray, weight = self.band_rays(mi, sensor, row0, seed, lanes, spp, W, H)
                 out = mnee_front(mi, ray.o, ray.d, state["pose"], state["lights"], eta, scene)
-                out["w_cam"] = out["w_cam"] * dr.float64_array_t(mi.Float)(weight[0])
+                out["w_cam"] = out["w_cam"] * weight[0]
                 out["u_light"], out["u_point"] = sampler.next_1d(), sampler.next_2d()
                 dr.eval(out)
                 return out
