@@ -111,9 +111,10 @@ class MneeKernels:
             if dr.width(idx) == 0:
                 return np.zeros((n_rows, W), dtype=np.float32)
             value = self.back_kernel()(es.scene, lanes, es.mnee_state)
-            value, idx = np.asarray(value, dtype=np.float64), np.asarray(idx)
-        pixel_sum = np.bincount(idx // spp, weights=value, minlength=n_rows * W)
-        return (pixel_sum * (1.0 / spp)).astype(np.float32).reshape(n_rows, W)
+            lanes = dr.zeros(mi.Float, n_rows * W * spp)
+            dr.scatter(lanes, value, idx)
+            pixels = dr.block_sum(lanes, spp) * (1.0 / spp)
+            return np.asarray(pixels, dtype=np.float32).reshape(n_rows, W)
 
 
 __all__ = ["MneeKernels"]
