@@ -3,16 +3,28 @@
 Renders one pose of a scene with ``strobe_through_cornea`` = ``none`` (the renders before MNEE:
 the path tracer carries no strobe light through the cornea) and ``mnee``, alternating the two
 ``--rounds`` times after a warm-up (kernels compiled), and prints the seconds per frame of
-each, their ratio per round (the machine's speed swings: the ratio within a round is the
-figure), the same in process CPU time (every thread's; steadier on a shared machine), and the mean strobe radiance of the iris and pupil relative to the sclera
+each and their ratio per round (the machine's speed swings: the ratio within a round is the
+figure), the same in process CPU time (every thread's: steadier on a shared machine), and the
+mean strobe radiance of the iris and pupil relative to the sclera
 (:func:`scet_render.render.region_labels`) at the cornea's index and at ``--index-near-one``,
 where a barely bending interface must light the iris about as a bare diffuse surface
 (albedo ratio iris / sclera = 0.3 / 0.7 = 0.43, less the iris's lower irradiance).
 
+Measured (paper_sim 640x480, 16 spp, 2-core machine shared by 8 agents, 2026-12-04; the iris
+and pupil fill 64 % of this frame):
+
+* one masked MNEE kernel on every lane, the solve in float64 (main before): ratio 1.76-1.84 on
+  a free machine, 1.66-2.77 shared;
+* the two frozen kernels with the iris lanes compacted between them and the float32 start
+  (:mod:`scet_render.render.mnee_kernels`): 5 and 8 rounds, wall ratio median 1.22 / 1.25
+  (0.59-2.91: the load swings within a round), CPU ratio median 1.27 / 1.31 (1.11-1.51);
+  none 4.2-4.5 s CPU a frame, MNEE's share 1.2-1.4 s CPU (front 0.3, compaction 0.05, back
+  1.0, of which the shadow ray and shading ~0.25).
+
 Usage::
 
     python benchmarks/bench_mnee.py [--scene paper_sim] [--spp 16] [--rounds 3]
-        [--index-near-one 1.01]
+        [--index-near-one 1.01] [--timing-only]
 """
 
 from __future__ import annotations
