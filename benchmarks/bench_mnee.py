@@ -16,10 +16,11 @@ and pupil fill 64 % of this frame):
 * one masked MNEE kernel on every lane, the solve in float64 (main before): ratio 1.76-1.84 on
   a free machine, 1.66-2.77 shared;
 * the two frozen kernels with the iris lanes compacted between them and the float32 start
-  (:mod:`scet_render.render.mnee_kernels`): 5 and 8 rounds, wall ratio median 1.22 / 1.25
-  (0.59-2.91: the load swings within a round), CPU ratio median 1.27 / 1.31 (1.11-1.51);
-  none 4.2-4.5 s CPU a frame, MNEE's share 1.2-1.4 s CPU (front 0.3, compaction 0.05, back
-  1.0, of which the shadow ray and shading ~0.25).
+  (:mod:`scet_render.render.mnee_kernels`): runs of 5, 8 and 6 rounds, wall ratio median
+  1.22 / 1.25 / 1.36 (0.59-2.91: the load swings within a round), CPU ratio median
+  1.27 / 1.31 / 1.32 (1.11-1.51); none 4.0-4.5 s CPU a frame, MNEE's share 1.2-1.4 s CPU
+  (front 0.3, compaction 0.05, back 1.0, of which the shadow ray and shading ~0.25). Region
+  means unchanged: iris / sclera 0.438 and pupil / sclera 0.0286 (1.01: 0.503, 0.0320).
 
 Usage::
 
