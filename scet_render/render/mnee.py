@@ -16,14 +16,13 @@ Estimation" (EGSR 2015) and Zeltner, Georgiev and Jakob, "Specular Manifold Samp
 2. A light k is picked uniformly and a point z on its sphere uniformly by area.
 3. The point y on the corneal surface where Snell's law joins x and z is solved by Newton's
    method on the direction w(a, b) = normalize(w0 + a u1 + b u2) leaving x (w0 = the direction
-   to z, the solution as n -> 1): the refracted ray from y(w) must pass through z. The residual
-   is the refracted ray's crossing of the plane through z normal to w0, in that plane's basis.
-   The solve runs in float64 with forward differences for the 2x2 Jacobian, from (a, b) = 0.
-4. The generalised geometry term (the manifold Jacobian) follows from the same 2x2 Jacobian J:
-   a patch da db of the parameters is a solid angle da db / |v|^3 at x (v = w0 + a u1 + b u2)
-   and an area |det J| da db on the plane through z, which is |w0 . d| / |n_z . d| times the
-   light's own area (d: the refracted direction). So per unit light area,
-   dOmega_x / dA_z = |n_z . d| / (|w0 . d| |det J| |v|^3); with n = 1 it is cos_z / |x - z|^2.
+   to z, the solution as n -> 1): the refracted ray from y(w) must pass through z. It starts
+   in float32 and ends in float64, with forward differences for the 2x2 Jacobian.
+4. The generalised geometry term (the manifold Jacobian): a patch da db of the parameters is a
+   solid angle da db / |v|^3 at x (v = w0 + a u1 + b u2) and an area |det C| da db on the
+   plane through z normal to the refracted direction d (C: :func:`connect`'s notes), which is
+   |n_z . d| times the light's own area. So per unit light area,
+   dOmega_x / dA_z = |n_z . d| / (|det C| |v|^3); with n = 1 it is cos_z / |x - z|^2.
 5. The light's radiance L enters the cornea as L (1 - F(y)) n^2, the diffuse BSDF at x weighs it
    with its cosine, and the visibility of z from y is a shadow ray (lids, lashes, skin).
 
@@ -34,10 +33,9 @@ cancel: they are kept to show where each belongs. Paths with further vertices in
 out: against converged path tracing with 1.5 mm lights, MNEE reads the iris 1.3-3.0 % darker
 (tests/scet_render/test_mnee.py).
 
-Everything moving is an opaque Dr.Jit input (:func:`pose_state`), so the frozen per-band
-kernels replay for every eye pose without recompiling. The numpy functions at the end are the
-independent references the tests check against: the same irradiance from the light's side, by
-power through a ray tube, and Gaussian optics on the axis (:mod:`.mnee_reference`).
+Everything moving is an opaque Dr.Jit input (:func:`pose_state`), so the frozen kernels
+(:mod:`.mnee_kernels`) replay for every eye pose without recompiling. The tests' independent
+references are in :mod:`.mnee_reference`.
 """
 
 from __future__ import annotations
@@ -48,19 +46,22 @@ import numpy as np
 
 from .layout import IRIS_OVERLAP, PUPIL_OFFSET_M, SCENE_UNITS_PER_M
 
-#: Reverse-Snell steps that start the solve, then damped Newton iterations (connect's notes).
-#: On 200 random pairs of iris points and paper_sim lights (tests/scet_render/test_mnee.py),
-#: the damped Newton alone from the n = 1 direction reached 140 of the 179 pairs the light-side
-#: reference reaches (missing 6 % of their irradiance: steep exits start totally reflected);
-#: 2 / 4 / 8 / 12 start steps then 10 iterations reach 169 / 171 / 177 / 178 of them (missing
-#: 0.12 % / 0.06 % / 0.013 % / 0.002 %); with 12 start steps, 3 iterations do as well as 10.
-START_STEPS = 12
-NEWTON_ITERATIONS = 4
+#: The solve (connect's notes): extrapolated reverse-Snell steps and Newton iterations in
+#: float32, then float64. Of 400 random iris point / paper_sim light pairs (test_mnee.py,
+#: sphere / conic q = -0.25) the light-side reference reaches 344 / 341, the float64 solve
+#: before (39 traces) 342 / 341, these 10 / 1 / 1 (20 traces, 14 float32) 344 / 341, as
+#: accurately (1.3e-5 / 1.5e-5 at most, not grazing); 12 / 2 / 1 unextrapolated 339 / 341.
+START_STEPS = 10
+NEWTON_ITERATIONS_F32 = 1
+NEWTON_ITERATIONS = 1
+MAX_RATIO = 0.8  # the start steps' largest extrapolation ratio (a factor 5 at most)
 #: Largest Newton step in the direction parameters (a, b ~ tangents of the angle from w0).
 MAX_STEP = 0.25
-#: Forward-difference step of the Jacobian, in the direction parameters (a, b) (float64: the
-#: truncation error, ~h times the map's curvature, is ~1e-7 of J).
+#: Forward-difference step of the Jacobian in the direction parameters (a, b): float64, the
+#: truncation error (~h times the map's curvature) is ~1e-7 of J; float32, rounding ~1e-7 / h
+#: and truncation ~h leave J good to ~1e-3, enough for Newton.
 JACOBIAN_STEP = 1e-7
+JACOBIAN_STEP_F32 = 1e-3
 #: A converged solve leaves the refracted ray this close to the light point (scene units, cm):
 #: 1e-6 cm = 10 nm, far below the 0.2 mm light and far above the float64 solve's floor.
 CONVERGED_CM = 1e-6
@@ -107,8 +108,7 @@ def to_drjit(state: dict, mi) -> dict:
     """:func:`pose_state` as opaque width-1 float64 Dr.Jit variables (frozen-kernel inputs)."""
     import drjit as dr
 
-    F64 = dr.float64_array_t(mi.Float)
-    V64 = dr.float64_array_t(mi.Vector3f)
+    F64, V64 = dr.float64_array_t(mi.Float), dr.float64_array_t(mi.Vector3f)
 
     def vec(v):
         return V64(*(dr.opaque(F64, float(c)) for c in v))
@@ -128,8 +128,7 @@ def light_table(setup, options, layout, mi) -> dict:
     :func:`pose_state`)."""
     import drjit as dr
 
-    F64 = dr.float64_array_t(mi.Float)
-    V64 = dr.float64_array_t(mi.Vector3f)
+    F64, V64 = dr.float64_array_t(mi.Float), dr.float64_array_t(mi.Vector3f)
     p = np.asarray(setup.lights_world_m, dtype=np.float64) * SCENE_UNITS_PER_M
     r = np.array([g.source_radius_m for g in setup.lights.groups for _ in range(g.count)],
                  dtype=np.float64) * SCENE_UNITS_PER_M
@@ -183,37 +182,83 @@ def _basis(w):
     return u1, u2
 
 
-def _exit_ray(state, x, w, eta):
-    """From ``x`` inside the cornea along unit ``w``: the exit point y, its outward normal, the
-    refracted direction d (unit) into air, cos of incidence inside, and a validity mask (the
-    quadric is left, no total internal reflection)."""
+def _trace(state, x, w0, u1, u2, a, b, eta):
+    """From ``x`` inside the cornea along w = normalize(v), v = w0 + a u1 + b u2: the exit
+    point y, its outward normal, the refracted direction d (unit) into air, cos of incidence
+    inside, v, and a validity mask (the quadric is left, no total internal reflection)."""
     import drjit as dr
 
+    v = w0 + u1 * a + u2 * b
+    w = dr.normalize(v)
     o = _mat(state, x) + state["t"]
     dl = _mat(state, w)
-    A = dr.dot(dl, dl)
-    B = dr.dot(o, dl)
-    C = dr.dot(o, o) - 1.0
+    A, B, C = dr.dot(dl, dl), dr.dot(o, dl), dr.dot(o, o) - 1.0
     disc = B * B - A * C
     t = (-B + dr.safe_sqrt(disc)) / A
-    y = x + w * t
     n = _normal(state, o + dl * t)
     cos_i = dr.dot(w, n)
     sin2_t = eta * eta * (1.0 - cos_i * cos_i)
     cos_t = dr.safe_sqrt(1.0 - sin2_t)
     d = w * eta - n * (eta * cos_i - cos_t)
     valid = (disc > 0) & (t > 0) & (cos_i > 0) & (sin2_t < 1.0)
-    return y, n, d, cos_i, valid
+    return x + w * t, n, d, cos_i, v, valid
 
 
-def _trace(state, x, w0, u1, u2, a, b, eta):
-    """The path of direction parameters (a, b) from x: :func:`_exit_ray` of
-    w = normalize(w0 + a u1 + b u2), and v = w0 + a u1 + b u2."""
+def _start(state, x, z, eta, w0, u1, u2, a, b, steps: int):
+    """Reverse-Snell steps (from where the ray leaves, the inside direction that refracts
+    toward z, never totally reflected); returns (a, b) and the trace there."""
     import drjit as dr
 
-    v = w0 + u1 * a + u2 * b
-    y, n, d, cos_i, valid = _exit_ray(state, x, dr.normalize(v), eta)
-    return y, n, d, cos_i, v, valid
+    tr = _trace(state, x, w0, u1, u2, a, b, eta)
+    pa = pb = None
+    for _ in range(steps):
+        n, t = tr[1], dr.normalize(z - tr[0])
+        cos_out = dr.dot(t, n)
+        cos_in = dr.safe_sqrt(1.0 - (1.0 - cos_out * cos_out) / (eta * eta))
+        w_s = (t + n * (eta * cos_in - cos_out)) / eta
+        along = dr.dot(w_s, w0)
+        ok = along > 0.1  # y and n exist for any x inside the quadric
+        da = dr.select(ok, dr.dot(w_s, u1) / along - a, 0.0)
+        db = dr.select(ok, dr.dot(w_s, u2) / along - b, 0.0)
+        # Steps that shrink by a ratio r along a line (measured: those slow to converge) sum
+        # to 1 / (1 - r) times the step (Aitken); r from the last two, at most MAX_RATIO.
+        r = 0.0 if pa is None else (da * pa + db * pb) / dr.maximum(pa * pa + pb * pb, 1e-30)
+        g = 1.0 / (1.0 - dr.clip(r, 0.0, MAX_RATIO))
+        a, b, pa, pb = a + da * g, b + db * g, da * g, db * g
+        tr = _trace(state, x, w0, u1, u2, a, b, eta)
+    return a, b, tr
+
+
+def _jacobian(state, x, z, eta, w0, u1, u2, a, b, tr, h):
+    """The miss e (the refracted direction less the direction to z, in a basis normal to the
+    latter) at (a, b) and its forward-difference Jacobian (e1, e2, j11, j12, j21, j22)."""
+    import drjit as dr
+
+    q1, q2 = _basis(dr.normalize(z - tr[0]))
+    e1, e2 = (dr.dot(tr[2] - dr.normalize(z - tr[0]), q) for q in (q1, q2))
+    j = []
+    for da, db in ((h, 0.0), (0.0, h)):
+        y, _, d, _, _, _ = _trace(state, x, w0, u1, u2, a + da, b + db, eta)
+        e = d - dr.normalize(z - y)
+        j += [(dr.dot(e, q1) - e1) / h, (dr.dot(e, q2) - e2) / h]
+    return e1, e2, j[0], j[2], j[1], j[3]
+
+
+def _newton(state, x, z, eta, w0, u1, u2, a, b, tr, h, iterations: int):
+    """Newton iterations on the miss, each step at most MAX_STEP: (a, b) and the trace."""
+    import drjit as dr
+
+    for _ in range(iterations):
+        e1, e2, j11, j12, j21, j22 = _jacobian(state, x, z, eta, w0, u1, u2, a, b, tr, h)
+        det = j11 * j22 - j12 * j21
+        inv = dr.select(dr.abs(det) > 0, 1.0 / det, 0.0)
+        da = inv * (j22 * e1 - j12 * e2)
+        db = inv * (j11 * e2 - j21 * e1)
+        step = dr.sqrt(da * da + db * db)
+        shrink = dr.select(step > MAX_STEP, MAX_STEP / dr.maximum(step, 1e-30), 1.0)
+        a, b = a - da * shrink, b - db * shrink
+        tr = _trace(state, x, w0, u1, u2, a, b, eta)
+    return a, b, tr
 
 
 def connect(state, x, z, eta, iterations: int = NEWTON_ITERATIONS, h: float = JACOBIAN_STEP):
@@ -234,86 +279,46 @@ def connect(state, x, z, eta, iterations: int = NEWTON_ITERATIONS, h: float = JA
         ``y`` the refraction point, ``n`` its outward normal, ``d`` the direction from y to z,
         ``w`` the direction from x to y, ``cos_in`` / ``cos_out`` the cosines of the ray with
         the normal at y inside and outside, ``domega_dperp`` dOmega_x / dA on the plane normal
-        to d at z (multiply by |n_z . d| for the light's own area), ``valid`` (converged, on
-        the quadric, no total reflection).
+        to d at z (times |n_z . d|: per light area), ``valid`` (converged, no total reflection).
 
     Notes
     -----
-    Newton's method runs on the angle between the refracted ray and the direction to z, in a
-    basis normal to the latter (bounded and smooth even where the ray leaves near grazing),
-    each step damped to a quarter where the full one does not lower the miss or leaves the
-    quadric. The geometry term comes from one more Jacobian at the solution: of where the
-    refracted ray crosses the plane through z normal to d (step 4 of the module docstring).
+    The start (:data:`START_STEPS` reverse-Snell steps: from the n = 1 direction alone a steep
+    exit is often totally reflected) and :data:`NEWTON_ITERATIONS_F32` Newton iterations run
+    in float32 (twice the SIMD width: 1.8 times faster a step, measured), then ``iterations``
+    in float64. Newton runs on the angle between the refracted ray and the direction to z, in
+    a basis normal to the latter (bounded and smooth even where the ray leaves near grazing).
+    The geometry term (step 4 of the module docstring) needs the Jacobian C of where the ray
+    crosses the plane through z normal to d: at the solution a change de of that angle moves
+    the crossing by L de (L = |z - y|), so |det C| = L^2 |det J|, J from one more Jacobian.
     """
     import drjit as dr
 
-    w0 = dr.normalize(z - x)
+    V32 = dr.float32_array_t(type(x))
+    s32 = {k: dr.float32_array_t(type(v))(v) for k, v in state.items()}
+    x32, z32 = V32(x), V32(z)
+    w0 = dr.normalize(z32 - x32)
     u1, u2 = _basis(w0)
     # Zeros of the inputs' width, derived from them: a frozen caller replays at any width.
-    a = x.x * 0.0
-    b = x.x * 0.0
-
-    def miss(a, b, q1, q2):
-        y, n, d, cos_i, v, valid = _trace(state, x, w0, u1, u2, a, b, eta)
-        e = d - dr.normalize(z - y)
-        return dr.dot(e, q1), dr.dot(e, q2), dr.select(valid, dr.squared_norm(e), math.inf)
-
-    y, n, d, cos_i, v, valid = _trace(state, x, w0, u1, u2, a, b, eta)
-    # Start: where the straight line leaves, the inside direction that refracts toward z
-    # (reverse Snell, never totally reflected), twice. From the n = 1 direction alone, a
-    # steep exit is often totally reflected and the damped steps cannot leave that region.
-    for _ in range(START_STEPS):
-        t = dr.normalize(z - y)
-        cos_out = dr.dot(t, n)
-        cos_in = dr.safe_sqrt(1.0 - (1.0 - cos_out * cos_out) / (eta * eta))
-        w_s = (t + n * (eta * cos_in - cos_out)) / eta
-        along = dr.dot(w_s, w0)
-        ok = along > 0.1  # y and n exist for any x inside the quadric
-        a = dr.select(ok, dr.dot(w_s, u1) / along, a)
-        b = dr.select(ok, dr.dot(w_s, u2) / along, b)
-        y, n, d, cos_i, v, valid = _trace(state, x, w0, u1, u2, a, b, eta)
-    for _ in range(iterations):
-        q1, q2 = _basis(dr.normalize(z - y))
-        e1, e2, m0 = miss(a, b, q1, q2)
-        ea1, ea2, _ = miss(a + h, b, q1, q2)
-        eb1, eb2, _ = miss(a, b + h, q1, q2)
-        j11, j21, j12, j22 = (ea1 - e1) / h, (ea2 - e2) / h, (eb1 - e1) / h, (eb2 - e2) / h
-        det = j11 * j22 - j12 * j21
-        inv = dr.select(dr.abs(det) > 0, 1.0 / det, 0.0)
-        da = inv * (j22 * e1 - j12 * e2)
-        db = inv * (j11 * e2 - j21 * e1)
-        step = dr.sqrt(da * da + db * db)
-        shrink = dr.select(step > MAX_STEP, MAX_STEP / dr.maximum(step, 1e-300), 1.0)
-        da, db = da * shrink, db * shrink
-        _, _, m_full = miss(a - da, b - db, q1, q2)
-        _, _, m_quarter = miss(a - 0.25 * da, b - 0.25 * db, q1, q2)
-        full = m_full < m0
-        quarter = ~full & (m_quarter < m0)
-        a = dr.select(full, a - da, dr.select(quarter, a - 0.25 * da, a))
-        b = dr.select(full, b - db, dr.select(quarter, b - 0.25 * db, b))
-        y, n, d, cos_i, v, valid = _trace(state, x, w0, u1, u2, a, b, eta)
-    angle = dr.norm(d - dr.normalize(z - y))
-    # The geometry term: where rays of nearby (a, b) cross the plane through z normal to d.
-    p1, p2 = _basis(d)
-
-    def crossing(a, b):
-        yy, _, dd, _, _, _ = _trace(state, x, w0, u1, u2, a, b, eta)
-        s = dr.dot(z - yy, d) / dr.dot(dd, d)
-        p = yy + dd * s - z
-        return dr.dot(p, p1), dr.dot(p, p2)
-
-    c1, c2 = crossing(a, b)
-    ca1, ca2 = crossing(a + h, b)
-    cb1, cb2 = crossing(a, b + h)
-    det = dr.abs((ca1 - c1) * (cb2 - c2) - (cb1 - c1) * (ca2 - c2)) / (h * h)
-    # dOmega_x = da db / |v|^3 and dA_perp = |det J| da db.
-    norm_v = dr.norm(v)
-    denom = det * norm_v * norm_v * norm_v
-    converged = angle * dr.norm(z - y) < CONVERGED_CM
-    return {"y": y, "n": n, "d": d, "w": dr.normalize(v), "cos_in": cos_i,
-            "cos_out": dr.dot(d, n),
+    a, b, tr = _start(s32, x32, z32, eta, w0, u1, u2, x32.x * 0.0, x32.x * 0.0, START_STEPS)
+    a, b, tr = _newton(s32, x32, z32, eta, w0, u1, u2, a, b, tr, JACOBIAN_STEP_F32,
+                       NEWTON_ITERATIONS_F32)
+    w = type(x)(dr.normalize(w0 + u1 * a + u2 * b))
+    w0 = dr.normalize(z - x)
+    u1, u2 = _basis(w0)
+    along = dr.dot(w, w0)
+    a, b = dr.dot(w, u1) / along, dr.dot(w, u2) / along
+    tr = _trace(state, x, w0, u1, u2, a, b, eta)
+    a, b, tr = _newton(state, x, z, eta, w0, u1, u2, a, b, tr, h, iterations)
+    y, n, d, cos_i, v, valid = tr
+    _, _, j11, j12, j21, j22 = _jacobian(state, x, z, eta, w0, u1, u2, a, b, tr, h)
+    L, norm_v = dr.norm(z - y), dr.norm(v)
+    # dOmega_x = da db / |v|^3 and dA_perp = L^2 |det J| da db.
+    denom = dr.abs(j11 * j22 - j12 * j21) * L * L * norm_v * norm_v * norm_v
+    converged = dr.norm(d - dr.normalize(z - y)) * L < CONVERGED_CM
+    return {"y": y, "n": n, "d": d, "w": dr.normalize(v), "cos_in": cos_i, "cos_out": dr.dot(d, n),
             "domega_dperp": dr.select(denom > 0, 1.0 / denom, 0.0),
-            "valid": valid & converged & (denom > 0)}
+            "valid": valid & converged & (denom > 0) & (along > 0.1)}
 
 
 def on_cap(state, p):
@@ -346,17 +351,15 @@ def mnee_radiance(mi, scene, sampler, ray, state, lights, eta: float, radiance: 
 
 
 def mnee_lanes(mi, scene, ray_o, ray_d, u_light, u_point, state, lights, eta: float,
-               radiance: float, compact: bool = True):
+               radiance: float):
     """The strobe radiance seen along camera rays through the cornea on the iris and pupil.
 
     Parameters
     ----------
     ray_o, ray_d : mi.Point3f, mi.Vector3f
         Camera rays (scene units), one per lane.
-    u_light : mi.Float
-        Uniform numbers choosing the light.
-    u_point : mi.Point2f
-        Uniform numbers choosing the point on it.
+    u_light, u_point : mi.Float, mi.Point2f
+        Uniform numbers choosing the light and the point on it.
     state, lights : dict
         :func:`to_drjit` of the pose and :func:`light_table` of the scene.
 
@@ -372,37 +375,39 @@ def mnee_lanes(mi, scene, ray_o, ray_d, u_light, u_point, state, lights, eta: fl
     nothing but the iris and pupil disks (the sclera's cap there is cut away), so the camera
     ray's path into it and the segment x -> y need no ray casts; one shadow ray checks that
     nothing covers the cornea in front of the camera (lids, lashes) and one that nothing
-    blocks y -> z. :func:`mnee_front` runs on every lane; with ``compact`` only the lanes that
-    reach the iris or pupil go on to :func:`mnee_back` (``dr.compress``: the solve costs nothing
-    where the camera sees skin), without it every lane runs it under a mask. The renderer's
-    frozen kernels take the masked form: a compaction's count changes with the pose, and
-    Dr.Jit 1.5 records (and compiles) a frozen function anew for each count.
+    blocks y -> z. Only the lanes :func:`mnee_front` finds on the iris or pupil go on to
+    :func:`mnee_back` (:func:`compact_lanes`; :mod:`.mnee_kernels` runs the two as frozen
+    kernels).
     """
     import drjit as dr
 
-    front = mnee_front(mi, ray_o, ray_d, state, lights, eta)
-    if not compact:
-        hit = front.pop("hit")
-        return mnee_back(mi, scene, front, u_light, u_point, state, lights, eta, radiance, hit)
-    idx = dr.compress(front.pop("hit"))
-    lanes = {k: dr.gather(type(v), v, idx) for k, v in front.items()}
-    value = mnee_back(mi, scene, lanes, dr.gather(mi.Float, u_light, idx),
-                      dr.gather(mi.Point2f, u_point, idx), state, lights, eta, radiance)
+    front = mnee_front(mi, ray_o, ray_d, state, lights, eta, scene)
+    front["u_light"], front["u_point"] = u_light, u_point
+    idx, lanes = compact_lanes(front)
     out = dr.zeros(mi.Float, dr.width(ray_o))
-    dr.scatter(out, value, idx)
+    dr.scatter(out, mnee_back(mi, scene, lanes, state, lights, eta, radiance), idx)
     return out
 
 
-def mnee_front(mi, ray_o, ray_d, state, lights, eta: float) -> dict:
-    """Step 1 on every lane: the camera ray's hit on the corneal cap (the quadric's near root),
-    the refraction in, and the pupil or iris point it reaches (a grazing ray that leaves
-    through the cap again meets neither disk). Returns ``hit`` (mi.Bool) and the per-lane
-    inputs of :func:`mnee_back`: ``x``, ``on_pupil``, ``w_cam`` (the camera side's (1 - F) /
-    n^2), ``t0`` (the distance to the cap), and the rays ``o``, ``d``."""
+def compact_lanes(front: dict):
+    """The lanes of :func:`mnee_front`'s ``hit``: (their indices, the other entries there)."""
     import drjit as dr
 
-    V64 = dr.float64_array_t(mi.Vector3f)
-    o_cam, d_cam = V64(ray_o), dr.normalize(V64(ray_d))
+    idx = dr.compress(front["hit"])
+    return idx, {k: dr.gather(type(v), v, idx) for k, v in front.items() if k != "hit"}
+
+
+def mnee_front(mi, ray_o, ray_d, state, lights, eta: float, scene=None) -> dict:
+    """Step 1 on every lane: the camera ray's hit on the corneal cap (the quadric's near root),
+    the refraction in, and the pupil or iris point it reaches (a grazing ray that leaves
+    through the cap again meets neither disk); with ``scene``, a shadow ray drops the lanes
+    whose way to the cornea is covered (lids, lashes, skin). Returns ``hit`` (mi.Bool) and the
+    per-lane inputs of :func:`mnee_back`: ``x``, ``on_pupil`` and ``w_cam`` (the camera
+    side's (1 - F) / n^2), in float32 (x is a sample point: ~1e-7 cm of rounding is noise)."""
+    import drjit as dr
+
+    state = {k: dr.float32_array_t(type(v))(v) for k, v in state.items()}
+    o_cam, d_cam = mi.Vector3f(ray_o), dr.normalize(mi.Vector3f(ray_d))
     o = _mat(state, o_cam) + state["t"]
     dl = _mat(state, d_cam)
     A, B, C = dr.dot(dl, dl), dr.dot(o, dl), dr.dot(o, o) - 1.0
@@ -416,33 +421,32 @@ def mnee_front(mi, ray_o, ray_d, state, lights, eta: float) -> dict:
     d_in = d_cam * inv_eta + n0 * (inv_eta * cos0 - cos0_t)
     x_p, on_pupil = _plane_hit(state, y0, d_in, lights["pupil_offset_cm"], state["pupil"])
     x_i, on_iris = _plane_hit(state, y0, d_in, 0.0, lights["iris_cm"])
-    hit = (disc > 0) & (t0 > 0) & (cos0 > 0) & on_cap(state, y0) & (on_pupil | on_iris)
-    return {"hit": mi.Bool(hit), "x": dr.select(on_pupil, x_p, x_i),
-            "on_pupil": mi.Bool(on_pupil),
-            "w_cam": (1.0 - _fresnel(cos0, eta)) * inv_eta * inv_eta, "t0": t0,
-            "o": mi.Point3f(ray_o), "d": mi.Vector3f(ray_d)}
+    hit = mi.Bool((disc > 0) & (t0 > 0) & (cos0 > 0) & on_cap(state, y0) & (on_pupil | on_iris))
+    if scene is not None:
+        seen = mi.Ray3f(mi.Point3f(ray_o), d_cam)
+        # Stop 1e-4 of the way short (~3 µm): float32 would find the cornea itself otherwise.
+        seen.maxt = mi.Float(t0 * (1.0 - 1e-4))
+        hit &= ~scene.ray_test(seen, hit)
+    return {"hit": hit, "x": dr.select(on_pupil, x_p, x_i), "on_pupil": mi.Bool(on_pupil),
+            "w_cam": (1.0 - _fresnel(cos0, eta)) * inv_eta * inv_eta}
 
 
-def mnee_back(mi, scene, lanes: dict, u_light, u_point, state, lights, eta: float,
-              radiance: float, active=True):
-    """Steps 2-5 (module docstring) on the lanes :func:`mnee_front` found on the iris or
-    pupil (or those of ``active``): the strobe radiance of each (mi.Float)."""
+def mnee_back(mi, scene, lanes: dict, state, lights, eta: float, radiance: float,
+              active=True):
+    """Steps 2-5 (module docstring) on the lanes :func:`mnee_front` found (or ``active``'s),
+    ``u_light`` (mi.Float) and ``u_point`` (mi.Point2f) choosing the light and the point on
+    it: the strobe radiance of each (mi.Float)."""
     import drjit as dr
 
-    V64 = dr.float64_array_t(mi.Vector3f)
-    F64 = dr.float64_array_t(mi.Float)
-    x = lanes["x"]
-    seen = mi.Ray3f(lanes["o"], dr.normalize(lanes["d"]))
-    # Stop 1e-4 of the way short (~3 µm): float32 would find the cornea itself otherwise.
-    seen.maxt = mi.Float(lanes["t0"] * (1.0 - 1e-4))
+    F64, V64 = dr.float64_array_t(mi.Float), dr.float64_array_t(mi.Vector3f)
+    x = V64(lanes["x"])
     active = mi.Bool(active)
-    active &= ~scene.ray_test(seen, active)  # lids, lashes, skin in front of the cornea
     # 2. A light and a point on it.
     K = lights["count"]
-    k = dr.minimum(mi.UInt32(u_light * K), K - 1)
+    k = dr.minimum(mi.UInt32(lanes["u_light"] * K), K - 1)
     c = dr.gather(V64, lights["center"], k)
     r = dr.gather(F64, lights["radius"], k)
-    n_z = V64(mi.warp.square_to_uniform_sphere(u_point))
+    n_z = V64(mi.warp.square_to_uniform_sphere(lanes["u_point"]))
     z = c + n_z * r
     # 3.-4. The refraction point and the manifold's geometry term.
     sol = connect(state, x, z, eta)
@@ -456,44 +460,10 @@ def mnee_back(mi, scene, lanes: dict, u_light, u_point, state, lights, eta: floa
     albedo = dr.select(lanes["on_pupil"], lights["pupil_albedo"], lights["iris_albedo"])
     f_cos = F64(albedo) * (1.0 / math.pi) * cos_x
     t_y = 1.0 - _fresnel(sol["cos_out"], eta)
-    geometry = sol["domega_dperp"] * facing
-    area = 4.0 * math.pi * r * r
-    value = f_cos * lanes["w_cam"] * t_y * (eta * eta) * geometry * area * (float(K) * radiance)
+    geometry, area = sol["domega_dperp"] * facing, 4.0 * math.pi * r * r
+    value = f_cos * F64(lanes["w_cam"]) * t_y * (eta * eta) * geometry * area * (K * radiance)
     return dr.select(active, mi.Float(value), 0.0)
 
 
-_INTEGRATOR_CLASSES: dict[str, type] = {}
-
-
-def mnee_integrator(mi, eye_scene):
-    """A sampling integrator for ``mi.render``: the scene's ``path`` integrator plus
-    :meth:`EyeScene.mnee` at the scene's current pose (the full-frame reference renders)."""
-    variant = mi.variant()
-    if variant not in _INTEGRATOR_CLASSES:
-
-        class PathWithMnee(mi.SamplingIntegrator):
-            def __init__(self, props=None):
-                mi.SamplingIntegrator.__init__(self, props or mi.Properties())
-                self.inner = None
-                self.eye_scene = None
-
-            def sample(self, scene, sampler, ray, medium=None, active=True):
-                L, valid, aovs = self.inner.sample(scene, sampler, ray, medium, active)
-                L = L + self.eye_scene.mnee(sampler, ray)
-                return L, valid, aovs
-
-            def aov_names(self):
-                return []
-
-            def to_string(self):
-                return "PathWithMnee[]"
-
-        _INTEGRATOR_CLASSES[variant] = PathWithMnee
-    integrator = _INTEGRATOR_CLASSES[variant]()
-    integrator.inner = eye_scene.scene.integrator()
-    integrator.eye_scene = eye_scene
-    return integrator
-
-
-__all__ = ["NEWTON_ITERATIONS", "connect", "light_table", "mnee_back", "mnee_front",
-           "mnee_integrator", "mnee_lanes", "mnee_radiance", "pose_state", "to_drjit", "on_cap"]
+__all__ = ["NEWTON_ITERATIONS", "compact_lanes", "connect", "light_table", "mnee_back",
+           "mnee_front", "mnee_lanes", "mnee_radiance", "pose_state", "to_drjit", "on_cap"]

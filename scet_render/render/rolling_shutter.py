@@ -27,9 +27,7 @@ cropped film. :meth:`BandedRenderer.render_frame_reference` renders every instan
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import gc
 import math
 from dataclasses import dataclass
 
@@ -43,23 +41,13 @@ from ..motion.pupil import pupil_diameters
 from .backend import activate, is_jit_variant
 from .layout import DEFAULT_AMBIENT_RADIANCE, SceneOptions, pupil_radius
 from .lens import LensRays, band_rays
-from .mnee import mnee_lanes
+from .mnee_kernels import MneeKernels
 from .scene import EyeScene, sensor_dict
 
 #: Trajectory samples per strobe period used to measure the eye's angular speed in a frame.
 SPEED_SAMPLES_PER_PERIOD = 16
 
 
-@contextlib.contextmanager
-def _collector_held():
-    """Python's cyclic garbage collector off for the duration (restored after)."""
-    was_on = gc.isenabled()
-    gc.disable()
-    try:
-        yield
-    finally:
-        if was_on:
-            gc.enable()
 
 
 @dataclass(frozen=True, slots=True)
@@ -306,6 +294,9 @@ class BandedRenderer:
         self.eye_scene = EyeScene(setup, self.options, spp=self.spp, mi=self.mi)
         self._kernels = {}
         self._crop_sensors = {}
+        lens = self.lens
+        self._mnee = MneeKernels(self.mi, setup, self.options,
+                                 lambda *args: band_rays(*args, lens=lens))
 
     # ------------------------------------------------------------------ row rendering
 
@@ -331,32 +322,6 @@ class BandedRenderer:
             self._kernels[spp, n_rows] = dr.freeze(render) if frozen else render
         return self._kernels[spp, n_rows]
 
-    def _mnee_kernel(self, spp: int, n_rows: int):
-        # MNEE in a frozen function of its own, with camera rays of its own: an independent
-        # estimate of the light the path tracer leaves out, so the path kernel stays as it
-        # was. Keyed like the path kernel (a recording replays only at its own width; one
-        # replayed at another width overran buffers and aborted). Every lane runs the solve
-        # under a mask: compacting the iris's lanes (mnee_lanes(compact=True)) records and
-        # compiles anew at every count, which changes with the pose.
-        if ("mnee", spp, n_rows) not in self._kernels:
-            import drjit as dr
-
-            mi, lens = self.mi, self.lens
-            W, H = self.setup.camera.width_px, self.setup.camera.height_px
-            eta = float(self.setup.eye.refractive_index)
-            radiance = float(self.options.light_radiance)
-
-            def kernel(scene, sensor, row0, seed, lanes, state):
-                sampler, ray, weight = band_rays(mi, sensor, row0, seed, lanes, spp, W, H, lens)
-                value = mnee_lanes(mi, scene, ray.o, ray.d, sampler.next_1d(),
-                                   sampler.next_2d(), state["pose"], state["lights"], eta,
-                                   radiance, compact=False) * weight[0]
-                dr.eval(value)
-                return value
-
-            self._kernels["mnee", spp, n_rows] = dr.freeze(kernel)
-        return self._kernels["mnee", spp, n_rows]
-
     def _render_rows_now(self, row_start: int, row_stop: int, spp: int, seed: int,
                          strobe: bool = True):
         """(rows, W, 3) float32 for the current pose; ``strobe=False``: an ambient-only
@@ -374,18 +339,9 @@ class BandedRenderer:
                                         dr.zeros(mi.UInt32, n_rows * W * spp))
             img = np.asarray(out, dtype=np.float32).T.reshape(n_rows, W, 3)
             if es.mnee_enabled and strobe:
-                # Its own sample stream: the seed's complement (seeds are < 2**32). Python's
-                # cyclic collector is held off while the kernel runs: a collection in the
-                # middle of recording it (its trace makes many objects) aborted Dr.Jit 1.5
-                # once in a fresh process ("Garbage-collecting" in connect).
-                with _collector_held():
-                    lanes = self._mnee_kernel(spp, n_rows)(
-                        es.scene, es.sensor, dr.opaque(mi.UInt32, row_start),
-                        dr.opaque(mi.UInt32, (~seed) & 0xFFFFFFFF),
-                        dr.zeros(mi.UInt32, n_rows * W * spp), es.mnee_state)
-                    lanes = np.asarray(lanes, dtype=np.float32)
-                strobe = lanes.reshape(n_rows, W, spp)
-                img[..., 0] += strobe.mean(axis=2, dtype=np.float32)
+                # Its own sample stream: the seed's complement (seeds are < 2**32).
+                img[..., 0] += self._mnee.rows(es, row_start, n_rows, spp,
+                                               (~seed) & 0xFFFFFFFF)
             return img
         key = (row_start, row_stop)
         if key not in self._crop_sensors:

@@ -77,7 +77,8 @@ from .meshes import (
     sclera_opacity,
     skin_mesh,
 )
-from .mnee import light_table, mnee_integrator, mnee_radiance, pose_state, to_drjit
+from .mnee import light_table, mnee_radiance, pose_state, to_drjit
+from .mnee_kernels import mnee_integrator
 
 log = logging.getLogger(__name__)
 

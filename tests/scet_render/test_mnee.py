@@ -42,6 +42,10 @@ REL_INVERSE_SQUARE = 1e-7
 #: Snell's law at the solved vertex: the solve stops at residuals of 1e-6 cm (10 nm) of the
 #: light point 3 cm away, ~3e-7 rad of direction.
 SNELL_RAD = 1e-5
+#: The renderer's compacted two-kernel MNEE against every lane running it under a mask: the
+#: same float32 and float64 operations, summed in another order (measured 4e-8 of the
+#: brightest pixel).
+REL_COMPACTED = 1e-6
 
 
 @pytest.fixture(scope="module")
@@ -340,8 +344,10 @@ def test_poses_replay_the_frozen_kernel(mi, paper):
     for k in range(3):
         rend.render_rows(POSE[0] + 0.02 * k, POSE[1], seed=k)
     # Recorded at the first call, and at most once more (Dr.Jit's first replay may record
-    # again, turning inputs that changed into opaque ones); then only replays.
-    assert rend._kernels["mnee", 16, setup.camera.height_px].n_recordings <= 2
+    # again, turning inputs that changed into opaque ones); then only replays. The back
+    # kernel sees a different number of iris lanes at each pose: still one recording.
+    assert rend._mnee.fronts[16, setup.camera.height_px].n_recordings <= 2
+    assert rend._mnee.back.n_recordings <= 2
     iris, _, _ = _iris_pupil(rend)
     # MNEE's own light, apart from the path tracer's at the same seed (as above).
     plain = _renderer(setup, "none", spp=16)
@@ -355,3 +361,36 @@ def test_poses_replay_the_frozen_kernel(mi, paper):
     reference = full(scene.render_integrator) - full(scene.integrator)
     # 16 against 64 spp of the same estimator: the region means agree to ~1 % (seed scatter).
     assert banded[iris].mean() == pytest.approx(reference[iris].mean(), rel=0.03)
+
+
+def test_compacted_kernels_give_what_every_lane_under_a_mask_gives(mi, paper):
+    """The renderer's MNEE (a front kernel per band height, the iris lanes compacted, one back
+    kernel recording replayed at every count of them) gives each pixel what the whole estimate
+    on every lane under a mask gives, for bands of several heights at several poses."""
+    import drjit as dr
+
+    from scet_render.render.lens import band_rays
+
+    setup = _small(paper, k=8)
+    rend = _renderer(setup, "mnee", spp=4)
+    es, W, H = rend.eye_scene, setup.camera.width_px, setup.camera.height_px
+    eta, L = float(setup.eye.refractive_index), float(rend.options.light_radiance)
+    counts = set()
+    for k, (pose, r0, r1) in enumerate([(POSE, 0, H), ((0.15, -0.05), 10, 40),
+                                        ((0.0, 0.1), 20, 21), ((-0.2, 0.0), 0, H)]):
+        es.set_pose(*pose)
+        got = rend._mnee.rows(es, r0, r1 - r0, 4, 100 + k)
+        sampler, ray, weight = band_rays(mi, es.sensor, dr.opaque(mi.UInt32, r0),
+                                         dr.opaque(mi.UInt32, 100 + k),
+                                         dr.zeros(mi.UInt32, (r1 - r0) * W * 4), 4, W, H)
+        state = es.mnee_state["pose"]
+        front = mnee.mnee_front(mi, ray.o, ray.d, state, es.mnee_lights, eta, es.scene)
+        hit = front.pop("hit")
+        front["u_light"], front["u_point"] = sampler.next_1d(), sampler.next_2d()
+        masked = mnee.mnee_back(mi, es.scene, front, state, es.mnee_lights, eta, L, hit)
+        expected = np.asarray(masked * weight[0], np.float64).reshape(r1 - r0, W, 4).mean(2)
+        counts.add(int(np.asarray(hit).sum()))
+        assert expected.max() > 0
+        assert np.abs(got - expected).max() <= REL_COMPACTED * expected.max()
+    assert len(counts) == 4
+    assert rend._mnee.back.n_recordings <= 2
