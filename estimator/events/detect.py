@@ -76,6 +76,22 @@ class EventParams:
     max_gap_s : float
         Longest stretch without a valid sample that velocities bridge (s): the blanking gap
         (6.5 ms) and a 60 Hz period (16.6 ms) pass, a blink or lost tracking does not.
+    min_interval_s : float
+        Minimum intersaccadic interval (s): an event that starts less than this after the
+        previous one ends is the same movement (a speed dip of a slow microsaccade's plateau
+        where NaN bands thin its velocity fits, an overshoot correction) and the two are
+        merged. 20 ms as Troncoso, Macknik and Martinez-Conde (2008) and Otero-Millan et al.
+        (2008, J. Vis. 8(14):21); 0 merges nothing (the detector before issue 34's second
+        round).
+    local_noise : bool
+        Each velocity in noise units of its own fit (module docstring, step 2): a window that
+        NaN bands or the blanking gap thin is noisier, and its speed is read against its own
+        standard error rather than the median window's. False: every velocity against the
+        scale's one median-based SD (the detector before issue 34's second round).
+    centroid_timing : bool
+        Crossings interpolated between the instants where the two bracketing fits' slopes
+        belong (the mean instant of each fit's samples, :func:`local_velocity`) rather than
+        the samples' own instants. False: the samples' own (the earlier detector).
     """
 
     timing_window_s: float = 0.002
@@ -89,12 +105,19 @@ class EventParams:
     max_peak_per_amplitude_hz: float = 150.0
     amplitude_window_s: float = 0.008
     max_gap_s: float = 0.025
+    min_interval_s: float = 0.020
+    local_noise: bool = True
+    centroid_timing: bool = True
 
     def __post_init__(self):
         for name in self.__slots__:
             v = getattr(self, name)
-            if not (math.isfinite(v) and v > 0):
-                raise ValueError(f"EventParams.{name} must be finite and > 0, got {v!r}")
+            if isinstance(v, bool):
+                continue
+            ok = math.isfinite(v) and (v >= 0 if name == "min_interval_s" else v > 0)
+            if not ok:
+                raise ValueError(f"EventParams.{name} must be finite and "
+                                 f"{'>= 0' if name == 'min_interval_s' else '> 0'}, got {v!r}")
         if self.bound_sd > self.detect_sd:
             raise ValueError(f"EventParams.bound_sd ({self.bound_sd}) must not exceed detect_sd "
                              f"({self.detect_sd})")
@@ -103,8 +126,15 @@ class EventParams:
     def settle_s(self) -> float:
         """Time after an offset before every velocity and the amplitude near it are final:
         what the streaming form waits (s)."""
-        return max(self.small_window_s, self.peak_window_s, self.timing_window_s) \
-            + self.amplitude_window_s
+        windows = max(self.small_window_s, self.peak_window_s, self.timing_window_s)
+        # an event starting within min_interval_s of the offset would be merged into it
+        return max(windows + self.amplitude_window_s, self.min_interval_s + self.timing_window_s)
+
+
+#: The detector of the first full-size study (reports/events.md before issue 34's second
+#: round): one noise SD per scale, crossings at the samples' own instants, no merging. Kept
+#: so that the study measures each change against it on the same samples.
+FIRST_ROUND = EventParams(min_interval_s=0.0, local_noise=False, centroid_timing=False)
 
 
 @dataclass(frozen=True, slots=True)
@@ -187,13 +217,14 @@ def _runs(mask) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1))
 
 
-def _crossing(tv, r, i, step, level, wide_s) -> tuple[float, float]:
+def _crossing(tv, tt, r, i, step, level, wide_s) -> tuple[float, float]:
     """Walk from valid sample ``i`` (r > level) by ``step`` (-1, +1) to the first sample at or
-    below ``level``; returns (time of the crossing, half the bracket). Within a bracket up to
-    ``wide_s`` the crossing is interpolated linearly; across a wider one (a blanking gap, NaN
-    bands) the speed's trend over the last two samples inside is extrapolated to the level,
-    no further than the bracket's middle (a straight line across a gap puts the crossing at
-    its far end).
+    below ``level``; returns (time of the crossing, half the bracket). ``tv`` are the samples'
+    instants (the bracket), ``tt`` where their speeds ``r`` belong (the fits' mean instants,
+    or ``tv``). Within a bracket up to ``wide_s`` the crossing is interpolated linearly;
+    across a wider one (a blanking gap, NaN bands) the speed's trend over the last two samples
+    inside is extrapolated to the level, no further than the bracket's middle (a straight
+    line across a gap puts the crossing at its far end).
     The start or end of the data is a crossing there, with an infinite uncertainty."""
     j = i
     while 0 <= j + step < r.size and np.isfinite(r[j + step]) and r[j + step] > level:
@@ -202,16 +233,18 @@ def _crossing(tv, r, i, step, level, wide_s) -> tuple[float, float]:
     if not (0 <= k < r.size) or not np.isfinite(r[k]):
         return float(tv[j]), math.inf
     half = 0.5 * abs(float(tv[k] - tv[j]))
+    if not step * (tt[k] - tt[j]) > 0:  # the fits' instants out of order: use the samples'
+        tt = tv
     if 2 * half <= wide_s:
         f = (r[j] - level) / (r[j] - r[k])  # r[j] > level >= r[k]
-        return float(tv[j] + f * (tv[k] - tv[j])), half
+        return float(tt[j] + f * (tt[k] - tt[j])), half
     q = j - step  # the sample before j, further inside the event
-    if 0 <= q < r.size and np.isfinite(r[q]) and r[q] > r[j]:
-        rate = (r[q] - r[j]) / abs(float(tv[q] - tv[j]))  # fall of r per second outwards
+    if 0 <= q < r.size and np.isfinite(r[q]) and r[q] > r[j] and step * (tt[j] - tt[q]) > 0:
+        rate = (r[q] - r[j]) / abs(float(tt[q] - tt[j]))  # fall of r per second outwards
         # at most to the bracket's middle: a speed above the level just inside a gap says the
         # event began near it (the ramps take a few ms), and a flat trend says little
-        reach = min((r[j] - level) / rate, half)
-        return float(tv[j] + step * reach), half
+        reach = min((r[j] - level) / rate, abs(float(0.5 * (tv[j] + tv[k]) - tt[j])))
+        return float(tt[j] + step * reach), half
     return float(0.5 * (tv[j] + tv[k])), half
 
 
@@ -255,17 +288,69 @@ def _angle_deg(a, b) -> float:
     return math.degrees(math.acos(c))
 
 
+@dataclass(frozen=True, slots=True)
+class ScaleFit:
+    """Velocities of the valid samples at one scale.
+
+    Attributes
+    ----------
+    velocity_deg_s : (n, 2) float
+        The yaw rate times cos(pitch), and the pitch rate (deg/s): their norm is the angular
+        speed of the gaze direction (for Fick angles |d direction / dt|^2 = cos^2(pitch) yaw'^2
+        + pitch'^2).
+    centroid_s : (n,) float
+        Mean instant of each fit's samples (s), where its slope belongs.
+    noise_gain_per_s : (n,) float
+        Standard error of each slope per unit of position noise (1/s).
+    """
+
+    velocity_deg_s: np.ndarray
+    centroid_s: np.ndarray
+    noise_gain_per_s: np.ndarray
+
+    def noise_units(self, local: bool) -> np.ndarray:
+        """(n, 2) velocities divided by their own standard-error gain (``local``: deg, a
+        position noise) or as they are (deg/s); what :func:`noise_sd` is taken of."""
+        if not local:
+            return self.velocity_deg_s
+        return self.velocity_deg_s / self.noise_gain_per_s[:, None]
+
+
 def scale_velocities(tv, xv, p: EventParams) -> dict:
-    """Velocities (n, 2) deg/s of valid samples at the three scales, the yaw rate times
-    cos(pitch), so that their norm is the angular speed of the gaze direction (for Fick
-    angles |d direction / dt|^2 = cos^2(pitch) yaw'^2 + pitch'^2)."""
+    """:class:`ScaleFit` of the valid samples at the three scales ("timing", "peak",
+    "small")."""
     c = np.cos(np.radians(xv[:, 1]))
     out = {}
     for name, h in (("timing", p.timing_window_s), ("peak", p.peak_window_s),
                     ("small", p.small_window_s)):
-        v = local_velocity(tv, xv, h, max_gap_s=p.max_gap_s)
+        v, cen, gain = local_velocity(tv, xv, h, max_gap_s=p.max_gap_s, full=True)
         v[:, 0] *= c
-        out[name] = v
+        out[name] = ScaleFit(v, cen, gain)
+    return out
+
+
+def noise_sd(fits: dict, p: EventParams) -> dict:
+    """Per scale the (2,) median-based SD (Engbert and Kliegl 2003) of the velocities in the
+    units :meth:`ScaleFit.noise_units` gives for ``p.local_noise``."""
+    return {k: _noise_sd(f.noise_units(p.local_noise)) for k, f in fits.items()}
+
+
+def _merge(rows, p: EventParams) -> list:
+    """Rows (onset, offset, onset unc., offset unc., amplitude, peak, pre (2,), post (2,)) in
+    onset order, each event starting less than ``p.min_interval_s`` after the previous one's
+    offset merged into it (the first's onset and gaze before, the last's offset and gaze
+    after, the larger peak)."""
+    out = []
+    for row in sorted(rows, key=lambda r: r[0]):
+        if out and row[0] - out[-1][1] < p.min_interval_s:
+            prev = out[-1]
+            pre, post = prev[6], row[7]
+            amp = _angle_deg(pre, post) if np.isfinite(pre).all() and np.isfinite(post).all() \
+                else math.nan
+            if row[1] >= prev[1]:
+                out[-1] = (prev[0], row[1], prev[2], row[3], amp, max(prev[5], row[5]), pre, post)
+            continue
+        out.append(row)
     return out
 
 
@@ -281,8 +366,9 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
         Gaze Fick angles (yaw, pitch) in degrees; NaN rows are missing bands.
     params : EventParams
     noise_sd_deg_s : dict, optional
-        Velocity noise per scale ("timing", "peak", "small": (2,) deg/s) to use instead of
-        the estimate from these samples (the streaming form passes its running estimate).
+        Velocity noise per scale ("timing", "peak", "small": (2,), in the units of
+        :func:`noise_sd` for these params) to use instead of the estimate from these samples
+        (the streaming form passes its running estimate).
     source : str
         Names the input in error messages.
 
@@ -296,8 +382,8 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
         return empty_events()
     tv, xv = t[ok], x[ok]
     p = params
-    vel = scale_velocities(tv, xv, p)
-    sd = noise_sd_deg_s or {k: _noise_sd(v) for k, v in vel.items()}
+    fits = scale_velocities(tv, xv, p)
+    sd = noise_sd_deg_s or noise_sd(fits, p)
     rows = []
     taken = np.zeros(tv.size, dtype=bool)
     spacing = float(np.median(np.diff(tv)))
@@ -314,13 +400,19 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
         si = _noise_sd(vi)
         ri = np.hypot(vi[:, 0] / si[0], vi[:, 1] / si[1])  # ri[i]: interval (i, i + 1)
     for scale in ("timing", "small"):
-        v, s = vel[scale], np.asarray(sd[scale], dtype=np.float64)
+        fit = fits[scale]
+        v, s = fit.velocity_deg_s, np.asarray(sd[scale], dtype=np.float64)
         if not np.isfinite(s).all():
             continue
-        r = np.hypot(v[:, 0] / s[0], v[:, 1] / s[1])
+        gain = fit.noise_gain_per_s if p.local_noise else np.ones(tv.size)
+        r = np.hypot(v[:, 0] / s[0], v[:, 1] / s[1]) / gain
         speed = np.hypot(v[:, 0], v[:, 1])
-        level_sd = max(p.detect_sd, p.min_detect_deg_s / float(np.hypot(*s) / math.sqrt(2)))
+        # the floor in noise units: each sample's own SD (deg/s) with local noise
+        sd_deg_s = float(np.hypot(*s) / math.sqrt(2)) * gain
+        with np.errstate(divide="ignore", invalid="ignore"):
+            level_sd = np.maximum(p.detect_sd, p.min_detect_deg_s / sd_deg_s)
         hot = np.where(np.isfinite(r), r > level_sd, False) & np.isfinite(speed)
+        tt = fit.centroid_s if p.centroid_timing else tv
         for a, b in _runs(hot):
             if taken[a:b + 1].any():
                 continue
@@ -328,8 +420,8 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
                 on, on_u = _interval_bound(tv, ri, a, -1, p.bound_sd)
                 off, off_u = _interval_bound(tv, ri, b, +1, p.bound_sd)
             else:
-                on, on_u = _crossing(tv, r, a, -1, p.bound_sd, wide)
-                off, off_u = _crossing(tv, r, b, +1, p.bound_sd, wide)
+                on, on_u = _crossing(tv, tt, r, a, -1, p.bound_sd, wide)
+                off, off_u = _crossing(tv, tt, r, b, +1, p.bound_sd, wide)
             if not (math.isfinite(on_u) and math.isfinite(off_u)):
                 continue  # the data start or end inside it: not measurable
             if any(on < f1 and off > f0 for f0, f1, *_ in rows):
@@ -342,14 +434,14 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
             post = _mean_near(tv, xv, off, off + p.amplitude_window_s, False)
             amp = _angle_deg(pre, post) if np.isfinite(pre).all() and np.isfinite(post).all() \
                 else math.nan
-            pv = vel["peak"] if scale == "timing" else v
+            pv = fits["peak"].velocity_deg_s if scale == "timing" else v
             inside = span | ((np.arange(tv.size) >= a) & (np.arange(tv.size) <= b))
             peak = float(np.nanmax(np.hypot(pv[inside, 0], pv[inside, 1])))
-            rows.append((on, off, on_u, off_u, amp, peak))
+            rows.append((on, off, on_u, off_u, amp, peak, pre, post))
+    rows = _merge(rows, p)
     if not rows:
         return empty_events()
-    arr = np.array(rows, dtype=np.float64)
-    arr = arr[np.argsort(arr[:, 0])]
+    arr = np.array([r[:6] for r in rows], dtype=np.float64)
     keep = (np.isfinite(arr[:, 4]) & (arr[:, 4] >= p.min_amplitude_deg)
             & (arr[:, 1] - arr[:, 0] >= p.min_duration_s)
             & (arr[:, 5] <= p.max_peak_per_amplitude_hz * arr[:, 4]))

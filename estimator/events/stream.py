@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .detect import (EventParams, Events, _noise_sd, check_samples, detect_events, empty_events,
+from .detect import (EventParams, Events, check_samples, detect_events, empty_events, noise_sd,
                      scale_velocities)
 
 #: Samples kept for the noise estimate (s): the median-based SD needs no more than a second
@@ -67,8 +67,7 @@ class EventStream:
         young = now - float(self._t[0]) < 0.5 * self.history_s  # the estimate still settling
         if self._sd is None or young or self._pushes % NOISE_EVERY == 0:
             ok = np.isfinite(self._x).all(axis=1)
-            self._sd = {k: _noise_sd(v)
-                        for k, v in scale_velocities(self._t[ok], self._x[ok], p).items()}
+            self._sd = noise_sd(scale_velocities(self._t[ok], self._x[ok], p), p)
         self._pushes += 1
         start = now - MAX_EVENT_S - 2 * p.settle_s
         recent = self._t >= start

@@ -236,7 +236,7 @@ def _trace_figure(traces, path: Path) -> None:
             from estimator.events.detect import scale_velocities
 
             ok = np.isfinite(ps[sel]).all(axis=1)
-            v = scale_velocities(ts[sel][ok], ps[sel][ok], _P())["timing"]
+            v = scale_velocities(ts[sel][ok], ps[sel][ok], _P())["timing"].velocity_deg_s
             m = (ts[sel][ok] >= lo) & (ts[sel][ok] <= hi)
             ax.plot(1e3 * (ts[sel][ok][m] - truth.onset_s[i]), np.hypot(v[m, 0], v[m, 1]), ".-",
                     ms=3, lw=0.7, color=c, label=name)
