@@ -10,20 +10,34 @@ NaN bands):
    windows.
 2. The noise of each velocity scale from the data: the median-based standard deviation of
    each axis, sigma = sqrt(median(v^2) - median(v)^2) (Engbert and Kliegl 2003, robust to the
-   saccades themselves), so the speed is read as a radius r = |v / sigma| in noise units.
+   saccades themselves), taken of each velocity divided by its own fit's standard-error gain
+   (:func:`estimator.events.velocity.local_velocity`): a fit that NaN bands or the blanking
+   gap thin is noisier, and its speed is read against its own noise, r = |v / (g sigma)|.
 3. A saccade is a run of samples with r > ``detect_sd`` at the timing scale (a microsaccade: at
-   the small scale, where no saccade was found); its onset and offset are where r crosses
-   ``bound_sd``, placed by linear interpolation between the two samples that bracket the
-   crossing. The uncertainty of each is half the bracket: at 16 pulses per frame and S = 524
-   about 0.5 ms, but 3.3 ms where the blanking gap of S = 786 (6.5 ms) hides the crossing, and
-   more across NaN bands.
-4. Main-sequence checks reject what noise and glitches make: the amplitude (between the mean
+   the small scale, where no saccade was found); its boundaries are first where r crosses
+   ``bound_sd``, interpolated linearly between the two samples that bracket the crossing, at
+   the instants where their fits' slopes belong (each fit's mean instant). An event that
+   starts less than ``min_interval_s`` (20 ms) after the previous one ends is merged into it
+   (the minimum intersaccadic interval of Troncoso et al. 2008: an overshoot correction, or a
+   slow microsaccade whose plateau speed dips where NaN bands thin the fits, is one movement).
+4. Each onset and offset is then placed by a position model fitted across the edge
+   (:func:`_edge_fit`): the fixation level, then a power-law rise along the event's
+   direction, fitted over 8 ms of fixation and the event's samples up to half its peak
+   speed; every sample on both sides votes, where the crossing rests on the two around one
+   level, and a 3-SD level is met up to ~2 ms into the 12-ms acceleration of a 20-deg
+   saccade. The uncertainty of each is half the bracket of the samples around it: at 16
+   pulses per frame and S = 524 about 0.5 ms, but 3.3 ms where the blanking gap of S = 786
+   (6.5 ms) hides it, and more across NaN bands.
+5. Main-sequence checks reject what noise and glitches make: the amplitude (between the mean
    gaze over ``amplitude_window_s`` before the onset and after the offset) must reach
    ``min_amplitude_deg``, the duration ``min_duration_s``, and the peak velocity must not exceed
    ``max_peak_per_amplitude_hz`` times the amplitude (a one-band glitch has a large speed and
    no amplitude; real saccades have V_p / A below ~70 /s even at 0.1 deg: Carpenter's and
    Baloh's main sequence gives 20-50 /s, microsaccades reach 30-70 /s, Martinez-Conde et al.
    2004).
+
+:data:`FIRST_ROUND` is the detector before steps 2's local noise, 3's mean instants and
+merging, and 4 (the first full-size study); ``scet study events`` measures each against it.
 
 Everything is in degrees (the Fick angles of the gaze, :func:`gaze_angles_deg`) and seconds.
 """
@@ -88,6 +102,18 @@ class EventParams:
         NaN bands or the blanking gap thin is noisier, and its speed is read against its own
         standard error rather than the median window's. False: every velocity against the
         scale's one median-based SD (the detector before issue 34's second round).
+    edge_fit : bool
+        Onsets and offsets placed by fitting the position across the edge (module docstring,
+        step 4) rather than at the boundary crossing. False: at the crossing (the earlier
+        detector).
+    edge_before_s : float
+        Fixation before the onset (after the offset) that the edge fit takes (s): the
+        amplitude window's 8 ms, ~8 bands at 16 pulses.
+    edge_speed_fraction : float
+        The edge fit runs into the event until the speed first reaches this share of the
+        event's peak: 0.5, the steepest part of a symmetric acceleration, chosen before
+        measuring (a draft tried 0.3 and 0.7 on the study's goal stream after: onset MAE
+        0.15 ms worse and 0.02 ms worse; no other value was tried).
     centroid_timing : bool
         Crossings interpolated between the instants where the two bracketing fits' slopes
         belong (the mean instant of each fit's samples, :func:`local_velocity`) rather than
@@ -106,6 +132,9 @@ class EventParams:
     amplitude_window_s: float = 0.008
     max_gap_s: float = 0.025
     min_interval_s: float = 0.020
+    edge_before_s: float = 0.008
+    edge_speed_fraction: float = 0.5
+    edge_fit: bool = True
     local_noise: bool = True
     centroid_timing: bool = True
 
@@ -134,7 +163,15 @@ class EventParams:
 #: The detector of the first full-size study (reports/events.md before issue 34's second
 #: round): one noise SD per scale, crossings at the samples' own instants, no merging. Kept
 #: so that the study measures each change against it on the same samples.
-FIRST_ROUND = EventParams(min_interval_s=0.0, local_noise=False, centroid_timing=False)
+FIRST_ROUND = EventParams(min_interval_s=0.0, local_noise=False, centroid_timing=False,
+                          edge_fit=False)
+#: Powers of the edge model (:func:`_edge_fit`): the speed jumping (1), rising linearly (2)
+#: or rising from zero acceleration (3) at the onset.
+EDGE_POWERS = (1.0, 2.0, 3.0)
+#: Candidate onsets of the edge fit relative to the crossing (s), and their step: 3 ms before
+#: (a 3-SD boundary is met up to ~2 ms into the 12-ms accelerations of 20-deg saccades) to
+#: 1.5 ms after (the +-2 ms fits' response starts a spacing before the movement).
+EDGE_SEARCH_S = (-0.003, 0.0015, 1e-4)
 
 
 @dataclass(frozen=True, slots=True)
@@ -335,6 +372,68 @@ def noise_sd(fits: dict, p: EventParams) -> dict:
     return {k: _noise_sd(f.noise_units(p.local_noise)) for k, f in fits.items()}
 
 
+def _edge_fit(tv, xv, speed, on, off, side, p: EventParams) -> float:
+    """Onset (``side`` -1) or offset (+1) of the event [on, off] by a position model fitted
+    across its edge; the crossing itself where the fit cannot be made.
+
+    Along the event's direction u (the mean gaze over ``p.edge_before_s`` outside each edge),
+    y(t) = (x(t) - x_fix) . u is fitted over the valid samples from ``p.edge_before_s``
+    outside the edge to where ``speed`` first reaches ``p.edge_speed_fraction`` of the
+    event's peak as y = a + c max(0, tau - tau0)^k (tau: time into the event from the
+    crossing, c > 0, k in :data:`EDGE_POWERS`); the (tau0, k) of least squares over the grid
+    :data:`EDGE_SEARCH_S` gives the edge. A two-phase regression (Hinkley 1969) of the movement's
+    start: every sample on both sides of the edge votes, where the crossing is decided by the
+    two that bracket one level; irregular instants and NaN bands need nothing special."""
+    edge = on if side < 0 else off
+    inside = (tv >= on) & (tv <= off)
+    if not inside.any():
+        return edge
+    peak = float(np.nanmax(speed[inside]))
+    before = (tv >= on - p.edge_before_s) & (tv < on)
+    after = (tv > off) & (tv <= off + p.edge_before_s)
+    fix, other = (before, after) if side < 0 else (after, before)
+    if fix.sum() < 2 or other.sum() < 2:
+        return edge
+    x_fix = xv[fix].mean(axis=0)
+    u = xv[other].mean(axis=0) - x_fix
+    norm = float(np.hypot(*u))
+    if not norm > 0:
+        return edge
+    tau = side * (edge - tv)  # into the event, from the crossing
+    fast = np.flatnonzero(inside & (speed >= p.edge_speed_fraction * peak))
+    if fast.size == 0:
+        return edge
+    lo, hi, step = EDGE_SEARCH_S
+    end = max(float(np.min(tau[fast])), hi + step)
+    w = (tau >= -p.edge_before_s) & (tau <= end)
+    if w.sum() < 5:
+        return edge
+    y = (xv[w] - x_fix) @ (u / norm)
+    x = tau[w]
+    t0 = np.arange(lo, min(hi, end - step) + 0.5 * step, step)
+    h = np.maximum(0.0, x[None, None, :] - t0[None, :, None]) ** np.asarray(EDGE_POWERS)[:, None, None]
+    hc = h - h.mean(axis=2, keepdims=True)
+    yc = y - y.mean()
+    s_hh = (hc * hc).sum(axis=2)
+    s_hy = (hc * yc).sum(axis=2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        c = s_hy / s_hh
+        sse = float(yc @ yc) - c * s_hy
+    sse = np.where((s_hh > 0) & (c > 0), sse, np.inf)
+    if not np.isfinite(sse).any():
+        return edge
+    k = np.unravel_index(int(np.argmin(sse)), sse.shape)
+    return float(edge - side * t0[k[1]])  # tau = side (edge - t)
+
+
+def _half_bracket(tv, t) -> float:
+    """Half the time between the valid samples that bracket instant ``t`` (s)."""
+    i = int(np.searchsorted(tv, t))
+    if i <= 0 or i >= tv.size:
+        return math.inf
+    return 0.5 * float(tv[i] - tv[i - 1])
+
+
 def _merge(rows, p: EventParams) -> list:
     """Rows (onset, offset, onset unc., offset unc., amplitude, peak, pre (2,), post (2,)) in
     onset order, each event starting less than ``p.min_interval_s`` after the previous one's
@@ -441,6 +540,13 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
     rows = _merge(rows, p)
     if not rows:
         return empty_events()
+    if p.edge_fit and not sparse:
+        speed = np.hypot(*fits["timing"].velocity_deg_s.T)
+        for n, row in enumerate(rows):
+            on = _edge_fit(tv, xv, speed, row[0], row[1], -1, p)
+            off = _edge_fit(tv, xv, speed, row[0], row[1], +1, p)
+            if off > on:  # each uncertainty: half the bracket of the fitted edge
+                rows[n] = (on, off, _half_bracket(tv, on), _half_bracket(tv, off), *row[4:])
     arr = np.array([r[:6] for r in rows], dtype=np.float64)
     keep = (np.isfinite(arr[:, 4]) & (arr[:, 4] >= p.min_amplitude_deg)
             & (arr[:, 1] - arr[:, 0] >= p.min_duration_s)
