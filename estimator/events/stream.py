@@ -3,9 +3,10 @@
 Samples are pushed as they come (a frame's bands at a time, say). Each push runs the detector
 over the last ``history_s`` of samples and reports each event once, as soon as its offset is
 :attr:`EventParams.settle_s` old (every velocity window and the amplitude window after it are
-then full). So an event is reported ``duration + settle_s`` (plus the wait for the next push)
-after its onset: 8 + 8 = 16 ms after the offset with the defaults, about 60 ms after the onset
-of a 10-deg saccade (43 ms long). The velocity noise is estimated over the last
+then full, and no event can start within the minimum intersaccadic interval and be merged into
+it). So an event is reported ``duration + settle_s`` (plus the wait for the next push) after
+its onset: 20 + 2 = 22 ms after the offset with the defaults, about 65 ms after the onset of
+a 10-deg saccade (43 ms long). The velocity noise is estimated over the last
 :data:`HISTORY_S`, refreshed every :data:`NOISE_EVERY` pushes; each push searches only the
 last :data:`MAX_EVENT_S` plus twice the settle time, so its cost does not grow with the
 history (``benchmarks/bench_events.py``).
