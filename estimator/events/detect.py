@@ -116,6 +116,14 @@ class EventParams:
         measuring (tried after, in a draft: on the study's goal stream 0.3 was 0.15 ms worse
         in onset mean abs error, 0.7 0.02 ms worse; on its held-out trajectories 0.7 was
         0.02 ms better; not adopted).
+    bounded_gap_reach : bool
+        An event ends at a stretch without valid samples longer than ``max_gap_s`` (the
+        velocities bridge no such stretch, and the speeds beyond it belong to another
+        movement), and a crossing hidden in any stretch is placed at most half of
+        ``max_gap_s`` (12.5 ms) beyond the last sample inside the event; its uncertainty
+        stays half the stretch. False: the earlier detector, whose bounds walked on across
+        such stretches (an offset found 1.4 s late, past 1.3 s of NaN bands, on a held-out
+        trajectory of the study).
     centroid_timing : bool
         Crossings interpolated between the instants where the two bracketing fits' slopes
         belong (the mean instant of each fit's samples, :func:`local_velocity`) rather than
@@ -139,6 +147,7 @@ class EventParams:
     edge_fit: bool = True
     local_noise: bool = True
     centroid_timing: bool = True
+    bounded_gap_reach: bool = True
 
     def __post_init__(self):
         for name in self.__slots__:
@@ -166,7 +175,7 @@ class EventParams:
 #: round): one noise SD per scale, crossings at the samples' own instants, no merging. Kept
 #: so that the study measures each change against it on the same samples.
 FIRST_ROUND = EventParams(min_interval_s=0.0, local_noise=False, centroid_timing=False,
-                          edge_fit=False)
+                          edge_fit=False, bounded_gap_reach=False)
 #: Powers of the edge model (:func:`_edge_fit`): the speed jumping (1), rising linearly (2)
 #: or rising from zero acceleration (3) at the onset.
 EDGE_POWERS = (1.0, 2.0, 3.0)
@@ -256,17 +265,32 @@ def _runs(mask) -> list[tuple[int, int]]:
     return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1))
 
 
-def _crossing(tv, tt, r, i, step, level, wide_s) -> tuple[float, float]:
+def _split_at_gaps(runs, tv, max_gap_s) -> list[tuple[int, int]]:
+    """The runs (first, last) cut wherever consecutive samples are more than ``max_gap_s``
+    apart."""
+    out = []
+    for a, b in runs:
+        cuts = np.flatnonzero(np.diff(tv[a:b + 1]) > max_gap_s) + a
+        starts = [a, *(cuts + 1)]
+        ends = [*cuts, b]
+        out += [(int(x), int(y)) for x, y in zip(starts, ends)]
+    return out
+
+
+def _crossing(tv, tt, r, i, step, level, wide_s, max_reach_s=math.inf) -> tuple[float, float]:
     """Walk from valid sample ``i`` (r > level) by ``step`` (-1, +1) to the first sample at or
     below ``level``; returns (time of the crossing, half the bracket). ``tv`` are the samples'
     instants (the bracket), ``tt`` where their speeds ``r`` belong (the fits' mean instants,
     or ``tv``). Within a bracket up to ``wide_s`` the crossing is interpolated linearly;
     across a wider one (a blanking gap, NaN bands) the speed's trend over the last two samples
     inside is extrapolated to the level, no further than the bracket's middle (a straight
-    line across a gap puts the crossing at its far end).
+    line across a gap puts the crossing at its far end) and no further than ``max_reach_s``
+    from the last sample inside; the walk stops at a stretch without samples longer than
+    twice ``max_reach_s`` (the speeds beyond it are of another movement).
     The start or end of the data is a crossing there, with an infinite uncertainty."""
     j = i
-    while 0 <= j + step < r.size and np.isfinite(r[j + step]) and r[j + step] > level:
+    while (0 <= j + step < r.size and np.isfinite(r[j + step]) and r[j + step] > level
+           and abs(float(tv[j + step] - tv[j])) <= 2 * max_reach_s):
         j += step
     k = j + step
     if not (0 <= k < r.size) or not np.isfinite(r[k]):
@@ -282,9 +306,10 @@ def _crossing(tv, tt, r, i, step, level, wide_s) -> tuple[float, float]:
         rate = (r[q] - r[j]) / abs(float(tt[q] - tt[j]))  # fall of r per second outwards
         # at most to the bracket's middle: a speed above the level just inside a gap says the
         # event began near it (the ramps take a few ms), and a flat trend says little
-        reach = min((r[j] - level) / rate, abs(float(0.5 * (tv[j] + tv[k]) - tt[j])))
+        reach = min((r[j] - level) / rate, abs(float(0.5 * (tv[j] + tv[k]) - tt[j])),
+                    max_reach_s)
         return float(tt[j] + step * reach), half
-    return float(0.5 * (tv[j] + tv[k])), half
+    return float(tv[j] + step * min(half, max_reach_s)), half
 
 
 def _interval_bound(tv, ri, i, step, level) -> tuple[float, float]:
@@ -514,15 +539,19 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
             level_sd = np.maximum(p.detect_sd, p.min_detect_deg_s / sd_deg_s)
         hot = np.where(np.isfinite(r), r > level_sd, False) & np.isfinite(speed)
         tt = fit.centroid_s if p.centroid_timing else tv
-        for a, b in _runs(hot):
+        runs = _runs(hot)
+        if p.bounded_gap_reach:  # a run never spans a stretch the velocities do not bridge
+            runs = _split_at_gaps(runs, tv, p.max_gap_s)
+        for a, b in runs:
             if taken[a:b + 1].any():
                 continue
             if sparse:
                 on, on_u = _interval_bound(tv, ri, a, -1, p.bound_sd)
                 off, off_u = _interval_bound(tv, ri, b, +1, p.bound_sd)
             else:
-                on, on_u = _crossing(tv, tt, r, a, -1, p.bound_sd, wide)
-                off, off_u = _crossing(tv, tt, r, b, +1, p.bound_sd, wide)
+                reach = 0.5 * p.max_gap_s if p.bounded_gap_reach else math.inf
+                on, on_u = _crossing(tv, tt, r, a, -1, p.bound_sd, wide, reach)
+                off, off_u = _crossing(tv, tt, r, b, +1, p.bound_sd, wide, reach)
             if not (math.isfinite(on_u) and math.isfinite(off_u)):
                 continue  # the data start or end inside it: not measurable
             if any(on < f1 and off > f0 for f0, f1, *_ in rows):

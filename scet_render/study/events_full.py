@@ -51,8 +51,10 @@ CHANGES = (
     ("+ crossings at the fits' mean instants", replace(FIRST_ROUND, centroid_timing=True)),
     ("+ speeds in their own fits' noise", replace(FIRST_ROUND, centroid_timing=True,
                                                   local_noise=True)),
-    ("+ 20 ms minimum intersaccadic interval", replace(EventParams(), edge_fit=False)),
-    ("+ edge fit (today's detector)", EventParams()),
+    ("+ 20 ms minimum intersaccadic interval", replace(EventParams(), edge_fit=False,
+                                                       bounded_gap_reach=False)),
+    ("+ edge fit", replace(EventParams(), bounded_gap_reach=False)),
+    ("+ bounds at most 12.5 ms into long gaps (today's detector)", EventParams()),
 )
 #: Further trajectories of the goal setting the changes are measured on (seeds of
 #: :func:`study_trajectory` and the noise, added to the study's): first simulated after the
@@ -178,7 +180,7 @@ def bracketed_onsets(streams) -> dict:
         unc.append(ev.onset_uncertainty_s[m.match[hit]])
     err, unc = np.concatenate(err), np.concatenate(unc)
     inside = unc <= BRACKETED_S
-    return {"bracketed": (int(inside.sum()), mean_ci(err[inside])),
+    return {"streams": len(streams), "bracketed": (int(inside.sum()), mean_ci(err[inside])),
             "gap": (int((~inside).sum()), mean_ci(err[~inside])),
             "gap_share_of_error": float(err[~inside].sum() / err.sum()) if err.sum() > 0 else math.nan}
 

@@ -306,3 +306,28 @@ def test_edge_fit_finds_the_foot_of_a_slow_acceleration():
     mae_cross = np.abs(err_cross).mean(axis=0)
     assert mae_fit[0] < TIMING_TOL_S, mae_fit
     assert (mae_fit < mae_cross).all(), (mae_fit, mae_cross)
+
+
+def test_an_event_ends_at_a_gap_the_velocities_do_not_bridge():
+    """A 10-deg saccade whose bands go NaN 12 ms after its onset for 0.38 s (the gaze in a
+    region the lights do not cover), and another saccade starting as the bands come back: the
+    first event ends within max_gap_s / 2 of its last sample, with an uncertainty of half the
+    stretch, and no event spans the stretch. The first-round detector made one event of both
+    (its run of fast samples was contiguous in index across the stretch)."""
+    from estimator.events.detect import FIRST_ROUND
+
+    t = PERIOD_S * (np.arange(int(1.0 / PERIOD_S)) + 0.5)
+    on1, on2 = 0.2, 0.6
+    x = saccade(t, on1, 10.0, 0.043) + saccade(t, on2, 6.0, 0.034, (0.0, 1.0)) \
+        + np.random.default_rng(9).normal(0, 0.0144, (t.size, 2))
+    x[(t > on1 + 0.012) & (t < on2 + 0.001)] = np.nan
+    last_inside = t[t <= on1 + 0.012][-1]
+    before = detect_events(t, x, FIRST_ROUND)
+    assert any(a < 0.3 and b > 0.5 for a, b in zip(before.onset_s, before.offset_s))
+    ev = detect_events(t, x)
+    assert not any(a < 0.3 and b > 0.5 for a, b in zip(ev.onset_s, ev.offset_s))
+    first = int(np.argmin(np.abs(ev.onset_s - on1)))
+    assert abs(ev.onset_s[first] - on1) < TIMING_TOL_S
+    p = EventParams()
+    assert last_inside < ev.offset_s[first] <= last_inside + 0.5 * p.max_gap_s + 1e-12
+    assert ev.offset_uncertainty_s[first] > 0.15  # half of the ~0.39 s without samples
