@@ -22,13 +22,14 @@ NaN bands):
    overshoot correction, or a slow microsaccade whose plateau speed dips where NaN bands thin
    the fits, is one movement).
 4. Each onset and offset is then placed by a position model fitted across the edge
-   (:func:`_edge_fit`): the fixation level, then a power-law rise along the event's
-   direction, fitted over 8 ms of fixation and the event's samples up to half its peak
-   speed; every sample on both sides votes, where the crossing rests on the two around one
-   level, and a 3-SD level is met up to ~2 ms into the 12-ms acceleration of a 20-deg
-   saccade. The uncertainty of each is half the bracket of the samples around it: at 16
-   pulses per frame and S = 524 about 0.5 ms, but 3.3 ms where the blanking gap of S = 786
-   (6.5 ms) hides it, and more across NaN bands.
+   (:func:`estimator.events.bounds.edge_fit`): the fixation level, then a power-law rise
+   along the event's direction, fitted over 8 ms of fixation and the event's samples up to
+   half its peak speed; every sample on both sides votes, where the crossing rests on the two
+   around one level, and a 3-SD level is met up to ~2 ms into the 12-ms acceleration of a
+   20-deg saccade. The uncertainty of each is half the bracket of the samples around it: at
+   16 pulses per frame and S = 524 about 0.5 ms, but 3.3 ms where the blanking gap of S = 786
+   (6.5 ms) hides it, and more across NaN bands. An event ends at a stretch without valid
+   samples longer than ``max_gap_s``, its bound at most half of that beyond its last sample.
 5. Main-sequence checks reject what noise and glitches make: the amplitude (between the mean
    gaze over ``amplitude_window_s`` before the onset and after the offset) must reach
    ``min_amplitude_deg``, the duration ``min_duration_s``, and the peak velocity must not exceed
@@ -50,6 +51,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .bounds import (WIDE_BRACKET, angle_deg, crossing, edge_fit, half_bracket, interval_bound,
+                     mean_near, runs, split_at_gaps)
 from .velocity import local_velocity
 
 SACCADE = "saccade"
@@ -57,11 +60,6 @@ MICROSACCADE = "microsaccade"
 #: Events below this amplitude are called microsaccades (deg): the usual upper bound
 #: (Martinez-Conde et al. 2004; issue 34 asks for 0.1-1 deg).
 MICROSACCADE_MAX_DEG = 1.0
-#: A crossing's bracket wider than this many median sample spacings is a gap: the crossing is
-#: extrapolated from inside rather than interpolated across it (:func:`_crossing`).
-WIDE_BRACKET = 2.5
-
-
 @dataclass(frozen=True, slots=True)
 class EventParams:
     """Settings of :func:`detect_events` (every default with its reason).
@@ -176,15 +174,6 @@ class EventParams:
 #: so that the study measures each change against it on the same samples.
 FIRST_ROUND = EventParams(min_interval_s=0.0, local_noise=False, centroid_timing=False,
                           edge_fit=False, bounded_gap_reach=False)
-#: Powers of the edge model (:func:`_edge_fit`): the speed jumping (1), rising linearly (2)
-#: or rising from zero acceleration (3) at the onset.
-EDGE_POWERS = (1.0, 2.0, 3.0)
-#: Candidate onsets of the edge fit relative to the crossing (s), and their step: 3 ms before
-#: (a 3-SD boundary is met up to ~2 ms into the 12-ms accelerations of 20-deg saccades) to
-#: 1.5 ms after (the +-2 ms fits' response starts a spacing before the movement).
-EDGE_SEARCH_S = (-0.003, 0.0015, 1e-4)
-
-
 @dataclass(frozen=True, slots=True)
 class Events:
     """Detected events, (m,) arrays in onset order.
@@ -259,99 +248,6 @@ def _noise_sd(v) -> np.ndarray:
     return np.sqrt(np.maximum(np.median(vv * vv, axis=0) - np.median(vv, axis=0) ** 2, 1e-12))
 
 
-def _runs(mask) -> list[tuple[int, int]]:
-    """(first, last) index pairs of the runs of True in ``mask``."""
-    d = np.diff(np.r_[0, mask.astype(np.int8), 0])
-    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1) - 1))
-
-
-def _split_at_gaps(runs, tv, max_gap_s) -> list[tuple[int, int]]:
-    """The runs (first, last) cut wherever consecutive samples are more than ``max_gap_s``
-    apart."""
-    out = []
-    for a, b in runs:
-        cuts = np.flatnonzero(np.diff(tv[a:b + 1]) > max_gap_s) + a
-        starts = [a, *(cuts + 1)]
-        ends = [*cuts, b]
-        out += [(int(x), int(y)) for x, y in zip(starts, ends)]
-    return out
-
-
-def _crossing(tv, tt, r, i, step, level, wide_s, max_reach_s=math.inf) -> tuple[float, float]:
-    """Walk from valid sample ``i`` (r > level) by ``step`` (-1, +1) to the first sample at or
-    below ``level``; returns (time of the crossing, half the bracket). ``tv`` are the samples'
-    instants (the bracket), ``tt`` where their speeds ``r`` belong (the fits' mean instants,
-    or ``tv``). Within a bracket up to ``wide_s`` the crossing is interpolated linearly;
-    across a wider one (a blanking gap, NaN bands) the speed's trend over the last two samples
-    inside is extrapolated to the level, no further than the bracket's middle (a straight
-    line across a gap puts the crossing at its far end) and no further than ``max_reach_s``
-    from the last sample inside; the walk stops at a stretch without samples longer than
-    twice ``max_reach_s`` (the speeds beyond it are of another movement).
-    The start or end of the data is a crossing there, with an infinite uncertainty."""
-    j = i
-    while (0 <= j + step < r.size and np.isfinite(r[j + step]) and r[j + step] > level
-           and abs(float(tv[j + step] - tv[j])) <= 2 * max_reach_s):
-        j += step
-    k = j + step
-    if not (0 <= k < r.size) or not np.isfinite(r[k]):
-        return float(tv[j]), math.inf
-    half = 0.5 * abs(float(tv[k] - tv[j]))
-    if not step * (tt[k] - tt[j]) > 0:  # the fits' instants out of order: use the samples'
-        tt = tv
-    if 2 * half <= wide_s:
-        f = (r[j] - level) / (r[j] - r[k])  # r[j] > level >= r[k]
-        return float(tt[j] + f * (tt[k] - tt[j])), half
-    q = j - step  # the sample before j, further inside the event
-    if 0 <= q < r.size and np.isfinite(r[q]) and r[q] > r[j] and step * (tt[j] - tt[q]) > 0:
-        rate = (r[q] - r[j]) / abs(float(tt[q] - tt[j]))  # fall of r per second outwards
-        # at most to the bracket's middle: a speed above the level just inside a gap says the
-        # event began near it (the ramps take a few ms), and a flat trend says little
-        reach = min((r[j] - level) / rate, abs(float(0.5 * (tv[j] + tv[k]) - tt[j])),
-                    max_reach_s)
-        return float(tt[j] + step * reach), half
-    return float(tv[j] + step * min(half, max_reach_s)), half
-
-
-def _interval_bound(tv, ri, i, step, level) -> tuple[float, float]:
-    """Onset (``step`` -1) or offset (+1) of an event found at sample ``i`` of sparse samples:
-    from the intervals next to it, walk outwards while an interval's speed ``ri`` (between
-    consecutive samples, in noise SDs) exceeds ``level``; the event starts (ends) inside the
-    outermost such interval, whose middle is the estimate and half its length the
-    uncertainty (the interval alone cannot place it better)."""
-    n = ri.size
-    k = i - 1 if step < 0 else i  # the interval on that side of sample i
-    if not (0 <= k < n) or not np.isfinite(ri[k]):
-        return float(tv[i]), math.inf
-    if ri[k] <= level:  # nothing moved on that side: the bound is at the sample itself
-        k2 = k + (1 if step < 0 else -1)
-        if not (0 <= k2 < n):
-            return float(tv[i]), math.inf
-        k = k2
-    while 0 <= k + step < n and np.isfinite(ri[k + step]) and ri[k + step] > level:
-        k += step
-    return float(0.5 * (tv[k] + tv[k + 1])), 0.5 * float(tv[k + 1] - tv[k])
-
-
-def _mean_near(tv, xv, t0, t1, nearest_before: bool):
-    """Mean gaze of the valid samples in [t0, t1]; else the nearest sample outside it."""
-    sel = (tv >= t0) & (tv <= t1)
-    if sel.any():
-        return xv[sel].mean(axis=0)
-    i = np.searchsorted(tv, t0 if nearest_before else t1)
-    i = i - 1 if nearest_before else i
-    return xv[i] if 0 <= i < tv.size else np.full(2, np.nan)
-
-
-def _angle_deg(a, b) -> float:
-    """Angle between the gaze directions of Fick angles ``a`` and ``b`` (deg)."""
-    def direction(p):
-        yaw, pitch = np.radians(p)
-        return np.array([math.cos(pitch) * math.sin(yaw), math.sin(pitch),
-                         -math.cos(pitch) * math.cos(yaw)])
-    c = float(np.clip(direction(a) @ direction(b), -1.0, 1.0))
-    return math.degrees(math.acos(c))
-
-
 @dataclass(frozen=True, slots=True)
 class ScaleFit:
     """Velocities of the valid samples at one scale.
@@ -399,68 +295,6 @@ def noise_sd(fits: dict, p: EventParams) -> dict:
     return {k: _noise_sd(f.noise_units(p.local_noise)) for k, f in fits.items()}
 
 
-def _edge_fit(tv, xv, speed, on, off, side, p: EventParams) -> float:
-    """Onset (``side`` -1) or offset (+1) of the event [on, off] by a position model fitted
-    across its edge; the crossing itself where the fit cannot be made.
-
-    Along the event's direction u (the mean gaze over ``p.edge_before_s`` outside each edge),
-    y(t) = (x(t) - x_fix) . u is fitted over the valid samples from ``p.edge_before_s``
-    outside the edge to where ``speed`` first reaches ``p.edge_speed_fraction`` of the
-    event's peak as y = a + c max(0, tau - tau0)^k (tau: time into the event from the
-    crossing, c > 0, k in :data:`EDGE_POWERS`); the (tau0, k) of least squares over the grid
-    :data:`EDGE_SEARCH_S` gives the edge. A two-phase regression (Hinkley 1969) of the movement's
-    start: every sample on both sides of the edge votes, where the crossing is decided by the
-    two that bracket one level; irregular instants and NaN bands need nothing special."""
-    edge = on if side < 0 else off
-    inside = (tv >= on) & (tv <= off)
-    if not inside.any():
-        return edge
-    peak = float(np.nanmax(speed[inside]))
-    before = (tv >= on - p.edge_before_s) & (tv < on)
-    after = (tv > off) & (tv <= off + p.edge_before_s)
-    fix, other = (before, after) if side < 0 else (after, before)
-    if fix.sum() < 2 or other.sum() < 2:
-        return edge
-    x_fix = xv[fix].mean(axis=0)
-    u = xv[other].mean(axis=0) - x_fix
-    norm = float(np.hypot(*u))
-    if not norm > 0:
-        return edge
-    tau = side * (edge - tv)  # into the event, from the crossing
-    fast = np.flatnonzero(inside & (speed >= p.edge_speed_fraction * peak))
-    if fast.size == 0:
-        return edge
-    lo, hi, step = EDGE_SEARCH_S
-    end = max(float(np.min(tau[fast])), hi + step)
-    w = (tau >= -p.edge_before_s) & (tau <= end)
-    if w.sum() < 5:
-        return edge
-    y = (xv[w] - x_fix) @ (u / norm)
-    x = tau[w]
-    t0 = np.arange(lo, min(hi, end - step) + 0.5 * step, step)
-    h = np.maximum(0.0, x[None, None, :] - t0[None, :, None]) ** np.asarray(EDGE_POWERS)[:, None, None]
-    hc = h - h.mean(axis=2, keepdims=True)
-    yc = y - y.mean()
-    s_hh = (hc * hc).sum(axis=2)
-    s_hy = (hc * yc).sum(axis=2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        c = s_hy / s_hh
-        sse = float(yc @ yc) - c * s_hy
-    sse = np.where((s_hh > 0) & (c > 0), sse, np.inf)
-    if not np.isfinite(sse).any():
-        return edge
-    k = np.unravel_index(int(np.argmin(sse)), sse.shape)
-    return float(edge - side * t0[k[1]])  # tau = side (edge - t)
-
-
-def _half_bracket(tv, t) -> float:
-    """Half the time between the valid samples that bracket instant ``t`` (s)."""
-    i = int(np.searchsorted(tv, t))
-    if i <= 0 or i >= tv.size:
-        return math.inf
-    return 0.5 * float(tv[i] - tv[i - 1])
-
-
 def _merge(rows, p: EventParams) -> list:
     """Rows (onset, offset, onset unc., offset unc., amplitude, peak, pre (2,), post (2,)) in
     onset order, each event starting less than ``p.min_interval_s`` after the previous one's
@@ -471,7 +305,7 @@ def _merge(rows, p: EventParams) -> list:
         if out and row[0] - out[-1][1] < p.min_interval_s:
             prev = out[-1]
             pre, post = prev[6], row[7]
-            amp = _angle_deg(pre, post) if np.isfinite(pre).all() and np.isfinite(post).all() \
+            amp = angle_deg(pre, post) if np.isfinite(pre).all() and np.isfinite(post).all() \
                 else math.nan
             if row[1] >= prev[1]:
                 out[-1] = (prev[0], row[1], prev[2], row[3], amp, max(prev[5], row[5]), pre, post)
@@ -539,19 +373,19 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
             level_sd = np.maximum(p.detect_sd, p.min_detect_deg_s / sd_deg_s)
         hot = np.where(np.isfinite(r), r > level_sd, False) & np.isfinite(speed)
         tt = fit.centroid_s if p.centroid_timing else tv
-        runs = _runs(hot)
+        spans = runs(hot)
         if p.bounded_gap_reach:  # a run never spans a stretch the velocities do not bridge
-            runs = _split_at_gaps(runs, tv, p.max_gap_s)
-        for a, b in runs:
+            spans = split_at_gaps(spans, tv, p.max_gap_s)
+        for a, b in spans:
             if taken[a:b + 1].any():
                 continue
             if sparse:
-                on, on_u = _interval_bound(tv, ri, a, -1, p.bound_sd)
-                off, off_u = _interval_bound(tv, ri, b, +1, p.bound_sd)
+                on, on_u = interval_bound(tv, ri, a, -1, p.bound_sd)
+                off, off_u = interval_bound(tv, ri, b, +1, p.bound_sd)
             else:
                 reach = 0.5 * p.max_gap_s if p.bounded_gap_reach else math.inf
-                on, on_u = _crossing(tv, tt, r, a, -1, p.bound_sd, wide, reach)
-                off, off_u = _crossing(tv, tt, r, b, +1, p.bound_sd, wide, reach)
+                on, on_u = crossing(tv, tt, r, a, -1, p.bound_sd, wide, reach)
+                off, off_u = crossing(tv, tt, r, b, +1, p.bound_sd, wide, reach)
             if not (math.isfinite(on_u) and math.isfinite(off_u)):
                 continue  # the data start or end inside it: not measurable
             if any(on < f1 and off > f0 for f0, f1, *_ in rows):
@@ -560,9 +394,9 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
                 continue
             span = (tv >= on) & (tv <= off)
             taken |= span | ((np.arange(tv.size) >= a) & (np.arange(tv.size) <= b))
-            pre = _mean_near(tv, xv, on - p.amplitude_window_s, on, True)
-            post = _mean_near(tv, xv, off, off + p.amplitude_window_s, False)
-            amp = _angle_deg(pre, post) if np.isfinite(pre).all() and np.isfinite(post).all() \
+            pre = mean_near(tv, xv, on - p.amplitude_window_s, on, True)
+            post = mean_near(tv, xv, off, off + p.amplitude_window_s, False)
+            amp = angle_deg(pre, post) if np.isfinite(pre).all() and np.isfinite(post).all() \
                 else math.nan
             pv = fits["peak"].velocity_deg_s if scale == "timing" else v
             inside = span | ((np.arange(tv.size) >= a) & (np.arange(tv.size) <= b))
@@ -574,10 +408,10 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
     if p.edge_fit and not sparse:
         speed = np.hypot(*fits["timing"].velocity_deg_s.T)
         for n, row in enumerate(rows):
-            on = _edge_fit(tv, xv, speed, row[0], row[1], -1, p)
-            off = _edge_fit(tv, xv, speed, row[0], row[1], +1, p)
+            on, off = (edge_fit(tv, xv, speed, row[0], row[1], side, p.edge_before_s,
+                                p.edge_speed_fraction) for side in (-1, +1))
             if off > on:  # each uncertainty: half the bracket of the fitted edge
-                rows[n] = (on, off, _half_bracket(tv, on), _half_bracket(tv, off), *row[4:])
+                rows[n] = (on, off, half_bracket(tv, on), half_bracket(tv, off), *row[4:])
     arr = np.array([r[:6] for r in rows], dtype=np.float64)
     keep = (np.isfinite(arr[:, 4]) & (arr[:, 4] >= p.min_amplitude_deg)
             & (arr[:, 1] - arr[:, 0] >= p.min_duration_s)

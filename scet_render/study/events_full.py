@@ -115,7 +115,8 @@ def detector_changes(setup, goal, traj, t, pos, seed: int, n_saccades: int, n_mi
         out.append({"name": name, "study": summarise(ms[0]),
                     "held_out": None if held is None else summarise(held),
                     "n_held_out": 0 if held is None else int((held.truth.amplitude_deg >= 1).sum())})
-    return out, bracketed_onsets(streams), nan_band_onsets(goal, traj, t, pos, seed)
+    bracketed = {**bracketed_onsets(streams), "held_out_seeds": tuple(seed + k for k in held_out)}
+    return out, bracketed, nan_band_onsets(goal, traj, t, pos, seed)
 
 
 #: NaN bands within this of a true onset (s) count as beside it (:func:`nan_band_onsets`).
@@ -169,18 +170,26 @@ def bracketed_onsets(streams) -> dict:
     of each."""
     from .events_score import mean_ci
 
-    err, unc = [], []
+    err, unc, per = [], [], []
     for tr, t, pos in streams:
         ev = detect_events(t, pos)
         truth = truth_events(tr, float(t[0]), float(t[-1]))
         m = match_events(ev.onset_s, ev.offset_s, ev.amplitude_deg, ev.peak_velocity_deg_s,
                          truth, 0.5 * float(np.median(np.diff(t))), float(t[0]), float(t[-1]))
-        hit = np.flatnonzero((m.match >= 0) & (truth.amplitude_deg >= 1.0))
+        big = truth.amplitude_deg >= 1.0
+        hit = np.flatnonzero((m.match >= 0) & big)
         err.append(1e3 * np.abs(ev.onset_s[m.match[hit]] - truth.onset_s[hit]))
         unc.append(ev.onset_uncertainty_s[m.match[hit]])
+        ok = np.isfinite(pos).all(axis=1)
+        missed = np.flatnonzero(big & (m.match < 0))
+        dark = sum(ok[(t >= truth.onset_s[i] - 0.01) & (t <= truth.offset_s[i] + 0.01)].mean() < 0.2
+                   for i in missed)
+        per.append({"valid": float(ok.mean()), "n": int(big.sum()), "missed": int(missed.size),
+                    "missed_dark": int(dark), "onset_mae_ms": float(err[-1].mean())})
     err, unc = np.concatenate(err), np.concatenate(unc)
     inside = unc <= BRACKETED_S
-    return {"streams": len(streams), "bracketed": (int(inside.sum()), mean_ci(err[inside])),
+    return {"streams": len(streams), "per_stream": per,
+            "bracketed": (int(inside.sum()), mean_ci(err[inside])),
             "gap": (int((~inside).sum()), mean_ci(err[~inside])),
             "gap_share_of_error": float(err[~inside].sum() / err.sum()) if err.sum() > 0 else math.nan}
 
