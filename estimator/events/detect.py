@@ -181,9 +181,9 @@ class Events:
     Attributes
     ----------
     onset_s, offset_s : (m,) float
-        Interpolated threshold crossings (s).
+        Onsets and offsets (s): the edge fits, or the threshold crossings without them.
     onset_uncertainty_s, offset_uncertainty_s : (m,) float
-        Half the time between the two samples that bracket each crossing (s).
+        Half the time between the two valid samples that bracket each (s).
     amplitude_deg : (m,) float
     peak_velocity_deg_s : (m,) float
     kind : (m,) str
