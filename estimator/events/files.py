@@ -7,7 +7,7 @@ The events CSV (format ``scet-events``, version :data:`EVENTS_VERSION`): a first
 
 times on the samples' clock (the strobe instants, s), the amplitude and peak velocity of the
 gaze's Fick angles, ``kind`` ``saccade`` or ``microsaccade`` (below 1 deg), and each
-uncertainty half the time between the two samples that bracket the crossing
+uncertainty half the time between the two valid samples that bracket the onset or offset
 (:mod:`estimator.events.detect`).
 """
 

@@ -3,9 +3,10 @@
 Samples are pushed as they come (a frame's bands at a time, say). Each push runs the detector
 over the last ``history_s`` of samples and reports each event once, as soon as its offset is
 :attr:`EventParams.settle_s` old (every velocity window and the amplitude window after it are
-then full). So an event is reported ``duration + settle_s`` (plus the wait for the next push)
-after its onset: 8 + 8 = 16 ms after the offset with the defaults, about 60 ms after the onset
-of a 10-deg saccade (43 ms long). The velocity noise is estimated over the last
+then full, and no event can start within the minimum intersaccadic interval and be merged into
+it). So an event is reported ``duration + settle_s`` (plus the wait for the next push) after
+its onset: 20 + 2 = 22 ms after the offset with the defaults, about 65 ms after the onset of
+a 10-deg saccade (43 ms long). The velocity noise is estimated over the last
 :data:`HISTORY_S`, refreshed every :data:`NOISE_EVERY` pushes; each push searches only the
 last :data:`MAX_EVENT_S` plus twice the settle time, so its cost does not grow with the
 history (``benchmarks/bench_events.py``).
@@ -15,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .detect import (EventParams, Events, _noise_sd, check_samples, detect_events, empty_events,
+from .detect import (EventParams, Events, check_samples, detect_events, empty_events, noise_sd,
                      scale_velocities)
 
 #: Samples kept for the noise estimate (s): the median-based SD needs no more than a second
@@ -67,8 +68,7 @@ class EventStream:
         young = now - float(self._t[0]) < 0.5 * self.history_s  # the estimate still settling
         if self._sd is None or young or self._pushes % NOISE_EVERY == 0:
             ok = np.isfinite(self._x).all(axis=1)
-            self._sd = {k: _noise_sd(v)
-                        for k, v in scale_velocities(self._t[ok], self._x[ok], p).items()}
+            self._sd = noise_sd(scale_velocities(self._t[ok], self._x[ok], p), p)
         self._pushes += 1
         start = now - MAX_EVENT_S - 2 * p.settle_s
         recent = self._t >= start

@@ -27,7 +27,8 @@ MAX_NEIGHBOURS = 64
 CHUNK = 8192
 
 
-def local_velocity(time_s, position_deg, half_window_s: float, *, max_gap_s: float) -> np.ndarray:
+def local_velocity(time_s, position_deg, half_window_s: float, *, max_gap_s: float,
+                   full: bool = False):
     """Velocity of every sample from a local line fit over its valid neighbours.
 
     Parameters
@@ -42,18 +43,32 @@ def local_velocity(time_s, position_deg, half_window_s: float, *, max_gap_s: flo
         The window widens to reach the nearest valid sample on each side, but never beyond
         this (s); a sample with no valid neighbour within it on either side gets NaN.
 
+    full : bool
+        Also return where each fit's slope belongs and how noisy it is.
+
     Returns
     -------
-    (n, 2) float
+    velocity : (n, 2) float
         deg/s; NaN for missing samples and for samples without a usable fit.
+    centroid_s : (n,) float
+        Only with ``full``: the mean instant of the fit's samples (s). A straight line's slope
+        through samples of a curve is the curve's slope near their mean instant, not at the
+        sample's own: beside a gap the window is one-sided, and its slope belongs up to half
+        a window away (what a crossing is interpolated between).
+    noise_gain_per_s : (n,) float
+        Only with ``full``: the slope's standard error per unit of independent position noise,
+        sqrt(n / (n S_tt - S_t^2)) (1/s; least squares, e.g. Press et al., Numerical Recipes,
+        Sec. 15.2). A window with fewer samples (NaN bands, the blanking gap) has a larger one.
     """
     t = np.asarray(time_s, dtype=np.float64)
     x = np.asarray(position_deg, dtype=np.float64)
     out = np.full(x.shape, np.nan)
+    cen = np.full(t.shape, np.nan)
+    gain = np.full(t.shape, np.nan)
     ok = np.flatnonzero(np.isfinite(x).all(axis=1))
     m = ok.size
     if m < 2:
-        return out
+        return (out, cen, gain) if full else out
     tv, xv = t[ok], x[ok]
     lo = np.searchsorted(tv, tv - half_window_s * (1 + 1e-9), side="left")
     hi = np.searchsorted(tv, tv + half_window_s * (1 + 1e-9), side="right")
@@ -71,6 +86,8 @@ def local_velocity(time_s, position_deg, half_window_s: float, *, max_gap_s: flo
     k_max = int(min(MAX_NEIGHBOURS, max(np.max(idx - lo), np.max(hi - 1 - idx))))
     offsets = np.arange(-k_max, k_max + 1)
     v = np.full((m, 2), np.nan)
+    c = np.full(m, np.nan)
+    g = np.full(m, np.nan)
     for a in range(0, m, CHUNK):  # one (rows, 2 k + 1) block at a time: bounded memory
         i = idx[a:a + CHUNK]
         j = i[:, None] + offsets[None, :]
@@ -89,5 +106,12 @@ def local_velocity(time_s, position_deg, half_window_s: float, *, max_gap_s: flo
             vb = (s_n[:, None] * s_tx - s_t[:, None] * s_x) / den[:, None]
         vb[~good] = np.nan
         v[a:a + CHUNK] = vb
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c[a:a + CHUNK] = np.where(good, tv[i] + s_t / s_n, np.nan)
+            g[a:a + CHUNK] = np.where(good, np.sqrt(s_n / den), np.nan)
     out[ok] = v
-    return out
+    if not full:
+        return out
+    cen[ok] = c
+    gain[ok] = g
+    return out, cen, gain

@@ -2,7 +2,8 @@
 feature-level simulation of :mod:`scet_render.study.events_sim` matches the renders.
 
 One lighting (the designed one by default), 16 pulses per frame, S = 524 (the goal setting of
-issue 34), 640 x 480 at 16 spp with the dielectric cornea, the dataset's ``"saccades"``
+issue 34), 640 x 480 at :data:`RENDER_SPP` spp with today's default renderer (the dielectric
+cornea, strobe light through it by MNEE), the dataset's ``"saccades"``
 trajectory (random screen points, fixations of 0.1-0.3 s) over :data:`RENDER_FRAMES` frames
 (9.5 s, 36 saccades wholly inside the span with a fixation's room on each side, seed 0), and
 one 5 x 5 single-pulse calibration of the same camera and lights read out at the scene's own
@@ -21,10 +22,12 @@ from estimator.scene import load_scene
 from estimator.setup import Setup
 
 #: Frames of the rendered sub-sequence: 570 frames hold 36 of the trajectory's saccades
-#: (seed 0), more than the 30 issue 34 asks for; ~2.5 s a frame on 2 free cores.
+#: (seed 0), more than the 30 issue 34 asks for; ~5 s a frame at 4 spp (dielectric, MNEE;
+#: measured over 6 frames on a shared 2-core machine, ~2.5 s with the conductor cornea).
 RENDER_FRAMES = 570
 RENDER_SPP = 4
-RENDER_CORNEA = "conductor"
+#: Today's default cornea (the first full-size study rendered it as a conductor).
+RENDER_CORNEA = "dielectric"
 RENDER_PULSES = 16
 RENDER_TOTAL_LINES = 524
 

@@ -55,13 +55,16 @@ def _gaze_deg(setup, rows) -> tuple[np.ndarray, np.ndarray]:
 
 def run_event_study(lightings: dict, *, quick: bool, out_dir, report_dir, seed: int = 0,
                     progress: Callable[[str, int, int], None] | None = None,
-                    config: EventConfig | None = None):
+                    config: EventConfig | None = None, render: bool = True):
     """Render, calibrate, track, detect and score (module docstring); write ``events.md``.
 
     Parameters
     ----------
     lightings : dict
         Label -> scene (name or file), e.g. {"current": "paper_sim", "designed": path}.
+    render : bool
+        Full mode: render the sub-sequence's missing frames (False: score only those
+        already rendered under ``out_dir``).
     """
     from estimator.folders import calibrate_from_folder, read_samples_csv, track_folder
     from estimator.banding import calibration_setup, scaled_setup, strobe_setup
@@ -71,7 +74,7 @@ def run_event_study(lightings: dict, *, quick: bool, out_dir, report_dir, seed: 
         from .events_full import cli_conditions, run_full_event_study
 
         rows, path = run_full_event_study(lightings, out_dir=out_dir, report_dir=report_dir,
-                                          seed=seed, progress=progress)
+                                          seed=seed, progress=progress, render=render)
         return cli_conditions(rows), path
     cfg = config or (QUICK if quick else FULL)
     if not lightings:

@@ -77,6 +77,19 @@ def match_events(onset_s, offset_s, amplitude_deg, peak_deg_s, truth: Truth, pad
                    (t1_s - t0_s - 2 * MARGIN_S) / 60.0)
 
 
+def pool(matched) -> Matched:
+    """One :class:`Matched` of several streams' (their true events, detections, false events
+    and minutes together): the measures of :func:`summarise` over all of them."""
+    ms = list(matched)
+    truth = Truth(*(np.concatenate([getattr(m.truth, f) for m in ms]) for f in Truth.__slots__))
+    shift = np.cumsum([0] + [m.onset_s.size for m in ms[:-1]])
+    match = np.concatenate([np.where(m.match >= 0, m.match + k, -1) for m, k in zip(ms, shift)])
+    cat = {f: np.concatenate([getattr(m, f) for m in ms])
+           for f in ("onset_s", "offset_s", "amplitude_deg", "peak_velocity_deg_s")}
+    return Matched(truth, match, n_detected=sum(m.n_detected for m in ms),
+                   n_false=sum(m.n_false for m in ms), minutes=sum(m.minutes for m in ms), **cat)
+
+
 def wilson(k: int, n: int) -> tuple[float, float, float]:
     """Rate and its 95 % Wilson score interval."""
     if n == 0:

@@ -5,6 +5,7 @@ events CSV and its bad input. Synthetic saccades with a raised-cosine speed prof
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -197,3 +198,136 @@ def test_sixty_hz_bounds_from_the_intervals():
     assert ev.onset_uncertainty_s[0] == pytest.approx(0.5 * FRAME_S)
     assert abs(ev.onset_s[0] - on) <= 0.5 * FRAME_S
     assert abs(ev.offset_s[0] - (on + 0.043)) <= 0.5 * FRAME_S
+
+
+def test_local_velocity_centroid_and_noise_gain_over_a_gap():
+    """Each fit's slope belongs at the mean instant of its samples, and its standard error per
+    unit of position noise is sqrt(n / (n S_tt - S_t^2)): checked by hand beside a gap, and the
+    gain against the scatter of slopes over many noise draws."""
+    t = PERIOD_S * np.arange(40, dtype=float)
+    x = np.zeros((40, 2))
+    x[20:23] = np.nan  # three NaN bands
+    h = 0.005  # the peak scale: +-4 bands
+    v, cen, gain = local_velocity(t, x, h, max_gap_s=0.025, full=True)
+    # sample 19: its +-5 ms window holds 15-19 and 23 (20-22 are NaN)
+    inside = [15, 16, 17, 18, 19, 23]
+    assert cen[19] == pytest.approx(t[inside].mean(), abs=1e-12)
+    dt = t[inside] - t[19]
+    n, s_t, s_tt = len(inside), dt.sum(), (dt * dt).sum()
+    assert gain[19] == pytest.approx(math.sqrt(n / (n * s_tt - s_t ** 2)), rel=1e-12)
+    assert cen[10] == pytest.approx(t[10], abs=1e-12)  # a full window: its own instant
+    assert gain[19] > 1.2 * gain[10]
+    rng = np.random.default_rng(7)
+    sigma = 0.01
+    draws = np.array([local_velocity(t, x + rng.normal(0, sigma, x.shape), h,
+                                     max_gap_s=0.025)[[10, 19], 0] for _ in range(2000)])
+    # 2000 draws: the SD's relative standard error is 1 / sqrt(2 * 1999) = 1.6 %; 5 % is 3 SE
+    np.testing.assert_allclose(draws.std(axis=0), sigma * gain[[10, 19]], rtol=0.05)
+
+
+def test_a_movement_resumed_within_the_intersaccadic_interval_is_one_event():
+    """A microsaccade of 0.5 deg, a 6-ms pause, then 0.3 deg more (an overshoot correction,
+    or a slow microsaccade's speed dip): one event from the first onset to the second offset
+    with the whole amplitude, under the 20 ms minimum intersaccadic interval (Troncoso et al.
+    2008); the first-round detector (no interval) reports two."""
+    from estimator.events.detect import FIRST_ROUND
+
+    t = PERIOD_S * (np.arange(int(0.6 / PERIOD_S)) + 0.5)
+    on = 0.3
+    x = saccade(t, on, 0.5, 0.020, ramp_s=0.002) \
+        + saccade(t, on + 0.026, 0.3, 0.018, ramp_s=0.002) \
+        + np.random.default_rng(5).normal(0, 0.002, (t.size, 2))
+    crossings = replace(EventParams(), edge_fit=False)  # the pieces' bounds to compare with
+    two = detect_events(t, x, replace(crossings, min_interval_s=0.0))
+    assert two.count == 2 and detect_events(t, x, FIRST_ROUND).count == 2
+    one = detect_events(t, x, crossings)
+    assert one.count == 1 and detect_events(t, x).count == 1
+    # the merged event spans the two: the first's onset, the second's offset
+    assert one.onset_s[0] == pytest.approx(two.onset_s[0], abs=1e-9)
+    assert one.offset_s[0] == pytest.approx(two.offset_s[1], abs=1e-9)
+    # (how close the pieces' bounds are to the truth is the other tests' business: at this
+    # low noise the 3-SD boundary sits at the foot of the +-2 ms fits' response)
+    assert abs(one.onset_s[0] - on) < 2 * TIMING_TOL_S
+    assert abs(one.offset_s[0] - (on + 0.026 + 0.018)) < 2 * TIMING_TOL_S
+    assert one.amplitude_deg[0] == pytest.approx(0.8, abs=0.02)
+    assert one.kind[0] == "microsaccade"
+    apart = x + saccade(t, on + 0.064, 0.3, 0.018, ramp_s=0.002) \
+        - saccade(t, on + 0.026, 0.3, 0.018, ramp_s=0.002)  # 26 ms later: its own event
+    assert detect_events(t, apart).count == 2
+
+
+def test_speeds_near_nan_bands_read_against_their_own_noise():
+    """Fixation noise only, a third of the bands NaN in runs of three: a velocity fit over a
+    thinned window is noisier than over a full one. Divided by its own standard-error gain
+    (local_noise) the thinned and the full windows have the same median-based SD (so one
+    threshold in noise units means the same false-alarm rate at both); in deg/s (the first
+    round) the thinned windows' is larger."""
+    from estimator.events.detect import _noise_sd, scale_velocities
+
+    rng = np.random.default_rng(11)
+    t = PERIOD_S * (np.arange(int(20.0 / PERIOD_S)) + 0.5)
+    x = rng.normal(0, 0.0144, (t.size, 2))
+    run_start = rng.random(t.size) < 0.12
+    nan = np.zeros(t.size, dtype=bool)
+    for k in range(3):
+        nan |= np.roll(run_start, k)
+    ok = ~nan
+    fit = scale_velocities(t[ok], x[ok], EventParams())["small"]
+    thin = fit.noise_gain_per_s > 1.15 * np.median(fit.noise_gain_per_s)
+    assert 0.1 < thin.mean() < 0.5
+    local = fit.noise_units(True)
+    ratio_local = _noise_sd(local[thin]) / _noise_sd(local[~thin])
+    raw = fit.noise_units(False)
+    ratio_raw = _noise_sd(raw[thin]) / _noise_sd(raw[~thin])
+    # thousands of samples a group: the median-based SD's sampling error is ~2 %
+    np.testing.assert_allclose(ratio_local, 1.0, atol=0.06)
+    assert (ratio_raw > 1.15).all(), ratio_raw
+
+
+def test_edge_fit_finds_the_foot_of_a_slow_acceleration():
+    """A 20-deg saccade accelerates over ~12 ms (the motion model's raised-cosine ramp): with
+    the rendered goal setting's noise (0.0144 deg a sample, every band valid) its speed meets
+    the 3-SD boundary ~2 ms after the movement starts. The position fit across the edge
+    (all the samples on both sides, not the two around one level) puts onset and offset
+    closer than the crossings over 12 noise draws, the onset within the 1 ms goal (measured:
+    onset 0.62 ms, offset 1.05 ms mean abs error; the crossings 1.49 and 1.60 ms)."""
+    t = PERIOD_S * (np.arange(int(0.5 / PERIOD_S)) + 0.5)
+    on, A, D = 0.2013, 20.0, 0.065
+    err_fit, err_cross = [], []
+    for seed in range(12):
+        x = saccade(t, on, A, D, ramp_s=0.0125) \
+            + np.random.default_rng(seed).normal(0, 0.0144, (t.size, 2))
+        fit = detect_events(t, x)
+        cross = detect_events(t, x, replace(EventParams(), edge_fit=False))
+        assert fit.count == cross.count == 1
+        err_fit.append([fit.onset_s[0] - on, fit.offset_s[0] - (on + D)])
+        err_cross.append([cross.onset_s[0] - on, cross.offset_s[0] - (on + D)])
+    mae_fit = np.abs(err_fit).mean(axis=0)
+    mae_cross = np.abs(err_cross).mean(axis=0)
+    assert mae_fit[0] < TIMING_TOL_S, mae_fit
+    assert (mae_fit < mae_cross).all(), (mae_fit, mae_cross)
+
+
+def test_an_event_ends_at_a_gap_the_velocities_do_not_bridge():
+    """A 10-deg saccade whose bands go NaN 12 ms after its onset for 0.38 s (the gaze in a
+    region the lights do not cover), and another saccade starting as the bands come back: the
+    first event ends within max_gap_s / 2 of its last sample, with an uncertainty of half the
+    stretch, and no event spans the stretch. The first-round detector made one event of both
+    (its run of fast samples was contiguous in index across the stretch)."""
+    from estimator.events.detect import FIRST_ROUND
+
+    t = PERIOD_S * (np.arange(int(1.0 / PERIOD_S)) + 0.5)
+    on1, on2 = 0.2, 0.6
+    x = saccade(t, on1, 10.0, 0.043) + saccade(t, on2, 6.0, 0.034, (0.0, 1.0)) \
+        + np.random.default_rng(9).normal(0, 0.0144, (t.size, 2))
+    x[(t > on1 + 0.012) & (t < on2 + 0.001)] = np.nan
+    last_inside = t[t <= on1 + 0.012][-1]
+    before = detect_events(t, x, FIRST_ROUND)
+    assert any(a < 0.3 and b > 0.5 for a, b in zip(before.onset_s, before.offset_s))
+    ev = detect_events(t, x)
+    assert not any(a < 0.3 and b > 0.5 for a, b in zip(ev.onset_s, ev.offset_s))
+    first = int(np.argmin(np.abs(ev.onset_s - on1)))
+    assert abs(ev.onset_s[first] - on1) < TIMING_TOL_S
+    p = EventParams()
+    assert last_inside < ev.offset_s[first] <= last_inside + 0.5 * p.max_gap_s + 1e-12
+    assert ev.offset_uncertainty_s[first] > 0.15  # half of the ~0.39 s without samples

@@ -11,8 +11,8 @@ import pytest
 
 from estimator.events import detect_events
 from estimator.scene import load_scene
-from scet_render.study.events_score import (match_events, poisson_rate, summarise, truth_events,
-                                            wilson, Truth)
+from scet_render.study.events_score import (match_events, pool, poisson_rate, summarise,
+                                            truth_events, wilson, Truth)
 from scet_render.study.events_sim import (StreamSetting, band_instants, band_setting,
                                           simulate_stream, study_trajectory)
 
@@ -74,6 +74,25 @@ def test_scorer_by_hand():
     assert s["peak_rel_err_pct"][0] == pytest.approx(3.0)
     assert s["micro_detected"][0] == pytest.approx(100.0)
     assert s["false_per_min"][0] == pytest.approx(1 / ((4.0 - 0.1) / 60))
+
+
+def test_pooled_streams_score_as_one():
+    """Two streams scored apart and pooled: the pooled measures are those of all their events
+    together (each stream's matches kept to its own detections)."""
+    truth = Truth(np.array([1.0, 2.0, 3.0]), np.array([1.04, 2.03, 3.02]),
+                  np.array([10.0, 2.5, 0.5]), np.array([300.0, 120.0, 30.0]))
+    a = match_events([1.001, 2.5, 2.998], [1.042, 2.55, 3.03], [9.9, 1.0, 0.5],
+                     [291.0, 50.0, 30.0], truth, 0.0005, 0.0, 4.0)
+    b = match_events([0.997, 2.003], [1.04, 2.03], [10.0, 2.5], [300.0, 126.0], truth,
+                     0.0005, 0.0, 4.0)
+    m = pool([a, b])
+    assert m.n_false == 1 and m.minutes == pytest.approx(2 * (4.0 - 0.1) / 60)
+    assert list(m.match) == [0, -1, 2, 3, 4, -1]
+    s = summarise(m)
+    assert s["detected_1deg"][0] == pytest.approx(75.0)  # 3 of the 4 >= 1 deg
+    assert s["onset_mae_ms"][0] == pytest.approx((1.0 + 3.0 + 3.0) / 3)
+    assert s["peak_rel_err_pct"][0] == pytest.approx((3.0 + 0.0 + 5.0) / 3)
+    assert s["false_per_min"][0] == pytest.approx(1 / m.minutes)
 
 
 def test_intervals_known_values():
