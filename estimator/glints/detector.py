@@ -242,8 +242,10 @@ def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionPa
     if elongated.size:
         px = _gather(box.take(elongated), labels)
         value = _weights(px, img, top, noise, table, params)[1]
-        px2, split = _deblend(px, value, np.arange(px.n), top, params,
-                              glint_kernels.blend_maxima if glint_kernels.ENABLED else _blend_maxima)
+        if glint_kernels.ENABLED:
+            px2, split = glint_kernels.deblend(px, value, top, params)
+        else:
+            px2, split = _deblend(px, value, np.arange(px.n), top, params, _blend_maxima)
         if px2 is not None:
             replaced[elongated[split]] = True
             spots = _Spots.concat([spots, _measure_pixels(px2, img, top, noise, table,
