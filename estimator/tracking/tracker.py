@@ -95,6 +95,12 @@ class Tracker:
         lashes"). It needs the calibration's ``glint_flux`` for the rig's lights: ``True``
         refuses a calibration without it, ``None`` (the default) flags where the calibration
         has it (a calibration from images, spherical or conic), ``False`` never flags.
+    focus_detection : bool
+        Search each frame for glints only around the glints its last frame's accepted samples
+        used (:class:`estimator.glints.GlintDetector` ``focus``; a whole-frame search every
+        30 frames, after a frame without an accepted sample, and wherever the window fails):
+        clutter far from the eye is not detected. Off by default (the detections, and with
+        them the samples, can differ where a glint appears outside the window).
 
     Attributes
     ----------
@@ -116,7 +122,8 @@ class Tracker:
     def __init__(self, setup: Setup, calibration: Calibration, method: str = "polynomial", *,
                  mapping: str = "eq1_25", detection: DetectionParams = DetectionParams(),
                  matching: MatchParams = MatchParams(), prior: BandPrior | None = BandPrior(),
-                 cheap: bool = True, flag_cut_glints: bool | None = None):
+                 cheap: bool = True, flag_cut_glints: bool | None = None,
+                 focus_detection: bool = False):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         if not isinstance(calibration, Calibration):
@@ -133,7 +140,7 @@ class Tracker:
         self.flags_cut_glints = fluxed if flag_cut_glints is None else bool(flag_cut_glints)
         # Detection reuses the sensor's noise model from frame to frame (measured again every
         # 30 frames, on a 5 % level drift, and after every reset of the stream).
-        self.detector = GlintDetector(setup, detection)
+        self.detector = GlintDetector(setup, detection, focus=focus_detection)
         # Glints predicted from the calibrated geometry, not the nominal one: the lighting pose
         # of the prototype is off by millimetres (a pixel or more per glint). One set of
         # calibrated fit problems for the stream: the matcher's orbit fits and the gaze fits of
@@ -211,9 +218,13 @@ class Tracker:
             det = det.select(~det.has(NO_BAND))
             glints, strobes, flux = det.glints_px, det.strobe_index, det.intensity
             flag = self.flags_cut_glints
-            return [self.band(frame_index, self.of_strobe(glints, strobes, b[0]), b, t,
-                              flux[strobes == b[0]] if flag else None)
-                    for b, t in zip(bands, times)]
+            samples = [self.band(frame_index, self.of_strobe(glints, strobes, b[0]), b, t,
+                                 flux[strobes == b[0]] if flag else None)
+                       for b, t in zip(bands, times)]
+            if self.detector.focus:
+                used = [s.glints_px for s in samples if s.ok]
+                self.detector.focus_on(np.concatenate(used) if used else None)
+            return samples
         except Exception as exc:  # the stream must survive any one frame; the reason is logged
             # A bug, not bad input: logged with its traceback, counted by the run's summary.
             log.error("frame %d: internal error %s: %s; its samples are NaN (%s)", frame_index,
