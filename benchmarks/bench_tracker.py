@@ -26,7 +26,7 @@ ratio per round, and the samples each estimates.
 Usage:
 
     python benchmarks/bench_tracker.py [--frames 60] [--rounds 3] [--dataset DIR [--pulses N]]
-                                       [--calibration FILE] [--conic Q] [--clock cpu]
+                                       [--calibration FILE] [--conic Q] [--clock cpu] [--focus]
 
 Each band step's latency (:meth:`Tracker.band`, from the band's detections to its sample) is
 printed as p50/p99 beside the frame's, with the rest of the frame's time (detection, grouping)
@@ -35,6 +35,12 @@ machine shared with other work it is what the tracker costs one core. On a Raspb
 ARM machine) the last line of each method compares the measured samples/s with what the
 planning rule expects from :data:`REFERENCE_X86` (hardware/README.md, "Real time on a
 Raspberry Pi").
+
+With ``--focus`` it also runs the cheap path with focused detection
+(``Tracker(focus_detection=True)``: each frame searched around the glints the last frame's
+samples used, :class:`estimator.glints.GlintDetector` ``focus``) in the same alternation, and
+prints its samples/s against the whole-frame detection's and whether the samples agree (as
+above; on rendered frames with clutter they may not where a glint appears outside the window).
 
 With ``--calibration FILE`` (a calibration with ``glint_flux``: ``scet calibrate`` of the
 dataset's calibration frames) it also times the cut-glint check
@@ -297,6 +303,9 @@ def main(argv=None):
     ap.add_argument("--conic", type=float, default=None, metavar="Q",
                     help="compare the spherical and the conic-aware tracker on an eye of conic "
                          "constant Q (synthetic frames only)")
+    ap.add_argument("--focus", action="store_true",
+                    help="also time the cheap path with focused detection "
+                         "(Tracker(focus_detection=True)) and compare its samples")
     ap.add_argument("--clock", choices=("wall", "cpu"), default="wall",
                     help="time by the wall clock (default) or by the process's CPU time (a "
                          "machine shared with other work: what the tracker costs one core)")
@@ -346,17 +355,20 @@ def main(argv=None):
     for method in ("polynomial", "geometric"):
         for cheap in (False, True):  # compile the cheap path's kernels before timing
             run(Tracker(setup, cal, method, cheap=cheap), frames[:3])
-        rates = {False: [], True: [], "numpy": []}
-        bands = {False: [], True: [], "numpy": []}
-        walls = {False: [], True: [], "numpy": []}
-        agree, agree_numpy, counts = True, True, None
+        modes = (False, True, "numpy") + (("focus",) if args.focus else ())
+        rates = {m: [] for m in modes}
+        bands = {m: [] for m in modes}
+        walls = {m: [] for m in modes}
+        agree, agree_numpy, agree_focus, counts = True, True, True, None
         for _ in range(args.rounds):
             out = {}
-            for cheap in (False, True, "numpy"):
-                # "numpy": the cheap path with the matcher's numpy steps (no matching kernels).
+            for cheap in modes:
+                # "numpy": the cheap path with the matcher's numpy steps (no matching kernels);
+                # "focus": the cheap path with focused detection.
                 match_kernels.ENABLED = cheap != "numpy" and KERNELS
                 try:
-                    tr = Tracker(setup, cal, method, cheap=bool(cheap))
+                    tr = Tracker(setup, cal, method, cheap=bool(cheap),
+                                 focus_detection=cheap == "focus")
                     samples, lat = run(tr, frames, bands[cheap], walls[cheap])
                 finally:
                     match_kernels.ENABLED = KERNELS
@@ -366,11 +378,15 @@ def main(argv=None):
                     counts = dict(tr.counts)
             agree &= same(out[False], out[True])
             agree_numpy &= same(out["numpy"], out[True])
+            if args.focus:
+                agree_focus &= same(out[True], out["focus"])
             ok = sum(s.ok for s in out[True])
         ratio = np.array(rates[True]) / np.array(rates[False])
         ratio_numpy = np.array(rates[True]) / np.array(rates["numpy"])
         for cheap, name in ((False, "search every band"), ("numpy", "cheap path, numpy matcher"),
-                            (True, "cheap path")):
+                            (True, "cheap path"), ("focus", "cheap path, focused detection")):
+            if cheap not in rates:
+                continue
             r, lat = np.array(rates[cheap]), np.array(walls[cheap]) * 1e3
             band = np.array(bands[cheap]) * 1e3
             # The rest of a frame's time (detection, grouping, the band layout) per band (wall).
@@ -389,6 +405,11 @@ def main(argv=None):
               f"{ratio_numpy.min():.2f}-{ratio_numpy.max():.2f}); same samples: "
               f"{'yes' if agree_numpy else 'NO'}"
               + ("" if KERNELS else " (Numba is not installed: both run numpy)"))
+        if args.focus:
+            ratio_focus = np.array(rates["focus"]) / np.array(rates[True])
+            print(f"  focused / whole-frame detection: {np.median(ratio_focus):.2f}x (rounds "
+                  f"{ratio_focus.min():.2f}-{ratio_focus.max():.2f}); same samples: "
+                  f"{'yes' if agree_focus else 'NO'}")
         for compiled, name in ((True, "cheap path"), (False, "cheap path, Python follow")):
             b = breakdown(setup, cal, method, frames, compiled)
             per = {s: 1e6 * b[s] / b["samples"] for s in STAGES}
