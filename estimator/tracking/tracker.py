@@ -222,8 +222,7 @@ class Tracker:
                                  flux[strobes == b[0]] if flag else None)
                        for b, t in zip(bands, times)]
             if self.detector.focus:
-                used = [s.glints_px for s in samples if s.ok]
-                self.detector.focus_on(np.concatenate(used) if used else None)
+                self.detector.focus_on(self.focus_points(samples))
             return samples
         except Exception as exc:  # the stream must survive any one frame; the reason is logged
             # A bug, not bad input: logged with its traceback, counted by the run's summary.
@@ -232,6 +231,20 @@ class Tracker:
             self.reset()
             return [failed_sample(frame_index, j, t, internal_error(exc))
                     for (j, _), t in zip(bands, times)]
+
+    def focus_points(self, samples) -> np.ndarray | None:
+        """Where the next frame's glints are sought with ``focus_detection`` (k, 2): the
+        detections the accepted ``samples`` of this frame used, and every visible light's glint
+        predicted at the stream's last eye rotation (a light that comes into view next to the
+        others); None without an accepted sample (the next frame is searched whole)."""
+        used = [s.glints_px for s in samples if s.ok]
+        if not used:
+            return None
+        last = self.state.last
+        if self.follower is not None and last is not None:
+            pred, visible = self.follower.predict(last.angles_rad)
+            used.append(pred[visible & np.isfinite(pred).all(axis=1)])
+        return np.concatenate(used)
 
     @staticmethod
     def of_strobe(glints_px, strobes, j: int) -> np.ndarray:
