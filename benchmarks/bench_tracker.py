@@ -98,7 +98,7 @@ PI_NEEDED_SAMPLES_S, PI_NEEDED_FRAMES_S = 960.0, 60.0
 #: The cheap path's samples/s on the synthetic frames (60 frames, 3 rounds, --clock cpu, the
 #: median) of a desktop x86 core, measured at this version (hardware/README.md, "Real time on a Raspberry Pi"): the
 #: figures an ARM run is compared with, through the planning rule.
-REFERENCE_X86 = {"polynomial": 3326.0, "geometric": 3118.0}
+REFERENCE_X86 = {"polynomial": 3337.0, "geometric": 3903.0}
 #: The clock of every timing: wall time (default), or the process's CPU time (``--clock
 #: cpu``: on a machine shared with other work, what the tracker itself costs one core).
 clock = time.perf_counter

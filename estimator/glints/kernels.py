@@ -1,9 +1,10 @@
 """Steps 2-6 of :mod:`estimator.glints.detector` after the top-hat, compiled with Numba (optional): the
 exact threshold and the connected components (:func:`components`), each component's centroid,
 shape and light (:func:`measure`), and the filters, strobe, time and flags of the spots that
-pass (:func:`finish`), one call each, and the separated maxima of an elongated spot
-(:func:`blend_maxima`) for :func:`estimator.glints.spots._deblend` in between (Monte Carlo
-clutter of a 4-spp render makes ~20 elongated spots a frame: 2.2 of its 3 ms in numpy).
+pass (:func:`finish`), one call each, and in between the split of every elongated spot into
+its separated maxima (:func:`deblend`, :func:`estimator.glints.spots._deblend` in one call;
+Monte Carlo clutter of a 4-spp render makes ~20 elongated spots a frame, 2.2 of its 3 ms in
+numpy, the prototype's 16-spp renders ~120).
 
 Without Numba (``pip install scet`` without the ``fast`` extra, a platform with no Numba wheel,
 or ``NUMBA_DISABLE_JIT=1``) the detector runs its numpy and OpenCV path

@@ -55,9 +55,10 @@ class GlintDetector:
 
     **Focus** (``focus``, off by default). Clutter (Monte Carlo fireflies of a render, specular
     highlights, a lamp) spreads detections over the whole frame, and with them the window. With
-    ``focus`` the window is instead the box of the glints the caller identified in the last
-    frame (:meth:`focus_on`, which the tracker calls with the detections its accepted samples
-    used), grown by ``roi_margin_px``: clutter far from the eye is not searched. The rules
+    ``focus`` the window is instead the box of the points the caller names after each frame
+    (:meth:`focus_on`; the tracker names the detections its accepted samples used and the
+    glints predicted at its last eye rotation), grown by ``roi_margin_px``: clutter far from
+    the eye is not searched. The rules
     above still hold but one: a whole-frame search every ``refresh_frames`` frames, at once
     when the window holds nothing, and after a frame with no identified glint
     (:meth:`focus_on` with none); a component that touches the window's inner edge is dropped

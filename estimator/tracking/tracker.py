@@ -97,10 +97,13 @@ class Tracker:
         has it (a calibration from images, spherical or conic), ``False`` never flags.
     focus_detection : bool
         Search each frame for glints only around the glints its last frame's accepted samples
-        used (:class:`estimator.glints.GlintDetector` ``focus``; a whole-frame search every
-        30 frames, after a frame without an accepted sample, and wherever the window fails):
-        clutter far from the eye is not detected. Off by default (the detections, and with
-        them the samples, can differ where a glint appears outside the window).
+        used and those predicted at the last eye rotation (:meth:`focus_points`,
+        :class:`estimator.glints.GlintDetector` ``focus``; a whole-frame search every 30
+        frames, after a frame without an accepted sample, and where the window holds
+        nothing): clutter far from the eye is not detected. Off by default: bands of clutter
+        alone then fail as ``match_too_few_glints`` rather than ``band_out_of_reach``, and a
+        glint that appears outside the window waits for the next whole-frame search (none
+        did on the rendered datasets measured, ``hardware/README.md``).
 
     Attributes
     ----------
