@@ -99,11 +99,12 @@ class Tracker:
         Search each frame for glints only around the glints its last frame's accepted samples
         used and those predicted at the last eye rotation (:meth:`focus_points`,
         :class:`estimator.glints.GlintDetector` ``focus``; a whole-frame search every 30
-        frames, after a frame without an accepted sample, and where the window holds
-        nothing): clutter far from the eye is not detected. Off by default: bands of clutter
-        alone then fail as ``match_too_few_glints`` rather than ``band_out_of_reach``, and a
-        glint that appears outside the window waits for the next whole-frame search (none
-        did on the rendered datasets measured, ``hardware/README.md``).
+        frames, after a frame without an accepted sample or a dropped one, and where the
+        window holds nothing): clutter far from the eye is not detected. Off by default: bands
+        of clutter alone then fail as ``match_too_few_glints`` rather than
+        ``band_out_of_reach``, and a glint that appears outside the window waits for the next
+        whole-frame search (none did on the rendered datasets measured,
+        ``hardware/README.md``).
 
     Attributes
     ----------
@@ -211,7 +212,12 @@ class Tracker:
                         frame_index, self.last_frame_index, Reason.FRAME_OUT_OF_ORDER)
             return [failed_sample(frame_index, j, t, Reason.FRAME_OUT_OF_ORDER)
                     for (j, _), t in zip(bands, times)]
+        dropped = self.last_frame_index is not None and frame_index > self.last_frame_index + 1
         self.last_frame_index = frame_index
+        if dropped:
+            # The focused window allows for one frame of eye motion: after a gap the whole
+            # frame is searched.
+            self.detector.focus_on(None)
         try:
             reason = self.frame_check(frame)
             if reason is not None:

@@ -383,3 +383,18 @@ def test_focused_detection_skips_far_clutter_and_gives_the_same_samples(setup, c
     assert focused.detector.windowed == len(imgs) - 1 and plain.detector.windowed == 0
     y0, y1, x0, x1 = focused.detector.window
     assert y0 > 17 and y1 < 440 and x0 > 17 and x1 < 600  # the blobs are outside
+
+
+def test_focused_detection_searches_the_whole_frame_after_a_dropped_frame(setup, calibration):
+    """The focused window allows for one frame of eye motion: after frames were dropped (a
+    gap in the indices) the next frame is searched whole, and the stream goes on."""
+    rng = np.random.default_rng(8)
+    yaw, pitch = setup.eye.angles_toward(setup.screen.grid(1, 1))
+    tr = Tracker(setup, calibration, "geometric", focus_detection=True)
+    windows = []
+    for f in (0, 1, 2, 6, 7):
+        out = tr.process(draw_frame(setup, f, float(yaw[0]), float(pitch[0]), rng), f)
+        assert any(s.ok for s in out)
+        windows.append(tr.detector.window)
+    assert windows[0] is None and windows[1] is not None and windows[2] is not None
+    assert windows[3] is None and windows[4] is not None
