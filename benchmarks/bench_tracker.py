@@ -26,7 +26,7 @@ ratio per round, and the samples each estimates.
 Usage:
 
     python benchmarks/bench_tracker.py [--frames 60] [--rounds 3] [--dataset DIR [--pulses N]]
-                                       [--calibration FILE] [--conic Q] [--clock cpu]
+                                       [--calibration FILE] [--conic Q] [--clock cpu] [--focus]
 
 Each band step's latency (:meth:`Tracker.band`, from the band's detections to its sample) is
 printed as p50/p99 beside the frame's, with the rest of the frame's time (detection, grouping)
@@ -35,6 +35,12 @@ machine shared with other work it is what the tracker costs one core. On a Raspb
 ARM machine) the last line of each method compares the measured samples/s with what the
 planning rule expects from :data:`REFERENCE_X86` (hardware/README.md, "Real time on a
 Raspberry Pi").
+
+With ``--focus`` it also runs the cheap path with focused detection
+(``Tracker(focus_detection=True)``: each frame searched around the glints the last frame's
+samples used, :class:`estimator.glints.GlintDetector` ``focus``) in the same alternation, and
+prints its samples/s against the whole-frame detection's and whether the samples agree (as
+above; on rendered frames with clutter they may not where a glint appears outside the window).
 
 With ``--calibration FILE`` (a calibration with ``glint_flux``: ``scet calibrate`` of the
 dataset's calibration frames) it also times the cut-glint check
@@ -92,7 +98,7 @@ PI_NEEDED_SAMPLES_S, PI_NEEDED_FRAMES_S = 960.0, 60.0
 #: The cheap path's samples/s on the synthetic frames (60 frames, 3 rounds, --clock cpu, the
 #: median) of a desktop x86 core, measured at this version (hardware/README.md, "Real time on a Raspberry Pi"): the
 #: figures an ARM run is compared with, through the planning rule.
-REFERENCE_X86 = {"polynomial": 3326.0, "geometric": 3118.0}
+REFERENCE_X86 = {"polynomial": 3337.0, "geometric": 3903.0}
 #: The clock of every timing: wall time (default), or the process's CPU time (``--clock
 #: cpu``: on a machine shared with other work, what the tracker itself costs one core).
 clock = time.perf_counter
@@ -134,6 +140,39 @@ def run(tracker, frames, band_s=None, wall_s=None):
         if wall_s is not None:
             wall_s.append(time.perf_counter() - w)
     return samples, np.array(lat)
+
+
+def focus_misses(setup, cal, method, frames, whole) -> dict:
+    """What focused detection loses against the whole frame's: the glints the whole-frame
+    tracker's accepted samples used (``whole``, its samples of ``frames``) that the focused
+    tracker's detector did not detect in the same frame (the window's detections are exactly
+    the whole frame's, to 1e-9 px), the estimated samples of each, and the largest screen
+    difference (m) of a band both estimated."""
+    tr = Tracker(setup, cal, method, focus_detection=True)
+    dets = {}
+
+    class Recorded:  # the detector, keeping each frame's detections
+        def __call__(self, img, f, detect=tr.detector):
+            dets[f] = detect(img, f)
+            return dets[f]
+
+        def __getattr__(self, name, detect=tr.detector):
+            return getattr(detect, name)
+
+    tr.detector = Recorded()
+    focused, _ = run(tr, frames)
+    missed = total = 0
+    for s in whole:
+        if not s.ok:
+            continue
+        have = dets[s.frame_index].glints_px
+        for g in s.glints_px:
+            total += 1
+            missed += have.shape[0] == 0 or np.abs(have - g).max(axis=1).min() > 1e-6
+    both = [np.abs(x.screen_xy_m - y.screen_xy_m).max() for x, y in zip(whole, focused)
+            if x.ok and y.ok]
+    return {"missed": missed, "glints": total, "whole_ok": sum(x.ok for x in whole),
+            "focused_ok": sum(y.ok for y in focused), "dscreen_m": max(both, default=0.0)}
 
 
 def same(a, b) -> bool:
@@ -338,6 +377,9 @@ def main(argv=None):
     ap.add_argument("--conic", type=float, default=None, metavar="Q",
                     help="compare the spherical and the conic-aware tracker on an eye of conic "
                          "constant Q (synthetic frames only)")
+    ap.add_argument("--focus", action="store_true",
+                    help="also time the cheap path with focused detection "
+                         "(Tracker(focus_detection=True)) and compare its samples")
     ap.add_argument("--clock", choices=("wall", "cpu"), default="wall",
                     help="time by the wall clock (default) or by the process's CPU time (a "
                          "machine shared with other work: what the tracker costs one core)")
@@ -397,17 +439,20 @@ def main(argv=None):
     for method in ("polynomial", "geometric"):
         for cheap in (False, True):  # compile the cheap path's kernels before timing
             run(Tracker(setup, cal, method, cheap=cheap), frames[:3])
-        rates = {False: [], True: [], "numpy": []}
-        bands = {False: [], True: [], "numpy": []}
-        walls = {False: [], True: [], "numpy": []}
-        agree, agree_numpy, counts = True, True, None
+        modes = (False, True, "numpy") + (("focus",) if args.focus else ())
+        rates = {m: [] for m in modes}
+        bands = {m: [] for m in modes}
+        walls = {m: [] for m in modes}
+        agree, agree_numpy, agree_focus, counts = True, True, True, None
         for _ in range(args.rounds):
             out = {}
-            for cheap in (False, True, "numpy"):
-                # "numpy": the cheap path with the matcher's numpy steps (no matching kernels).
+            for cheap in modes:
+                # "numpy": the cheap path with the matcher's numpy steps (no matching kernels);
+                # "focus": the cheap path with focused detection.
                 match_kernels.ENABLED = cheap != "numpy" and KERNELS
                 try:
-                    tr = Tracker(setup, cal, method, cheap=bool(cheap))
+                    tr = Tracker(setup, cal, method, cheap=bool(cheap),
+                                 focus_detection=cheap == "focus")
                     samples, lat = run(tr, frames, bands[cheap], walls[cheap])
                 finally:
                     match_kernels.ENABLED = KERNELS
@@ -417,11 +462,15 @@ def main(argv=None):
                     counts = dict(tr.counts)
             agree &= same(out[False], out[True])
             agree_numpy &= same(out["numpy"], out[True])
+            if args.focus:
+                agree_focus &= same(out[True], out["focus"])
             ok = sum(s.ok for s in out[True])
         ratio = np.array(rates[True]) / np.array(rates[False])
         ratio_numpy = np.array(rates[True]) / np.array(rates["numpy"])
         for cheap, name in ((False, "search every band"), ("numpy", "cheap path, numpy matcher"),
-                            (True, "cheap path")):
+                            (True, "cheap path"), ("focus", "cheap path, focused detection")):
+            if cheap not in rates:
+                continue
             r, lat = np.array(rates[cheap]), np.array(walls[cheap]) * 1e3
             band = np.array(bands[cheap]) * 1e3
             # The rest of a frame's time (detection, grouping, the band layout) per band (wall).
@@ -440,6 +489,16 @@ def main(argv=None):
               f"{ratio_numpy.min():.2f}-{ratio_numpy.max():.2f}); same samples: "
               f"{'yes' if agree_numpy else 'NO'}"
               + ("" if KERNELS else " (Numba is not installed: both run numpy)"))
+        if args.focus:
+            ratio_focus = np.array(rates["focus"]) / np.array(rates[True])
+            miss = focus_misses(setup, cal, method, frames, out[True])
+            print(f"  focused / whole-frame detection: {np.median(ratio_focus):.2f}x (rounds "
+                  f"{ratio_focus.min():.2f}-{ratio_focus.max():.2f}); same samples: "
+                  f"{'yes' if agree_focus else 'NO'}; glints of the accepted samples not "
+                  f"detected: {miss['missed']} of {miss['glints']} "
+                  f"({100 * miss['missed'] / max(miss['glints'], 1):.2f} %); estimated "
+                  f"{miss['whole_ok']} -> {miss['focused_ok']}; largest screen difference "
+                  f"{1e3 * miss['dscreen_m']:.3g} mm")
         for compiled, name in ((True, "cheap path"), (False, "cheap path, Python follow")):
             b = breakdown(setup, cal, method, frames, compiled)
             per = {s: 1e6 * b[s] / b["samples"] for s in STAGES}

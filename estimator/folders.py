@@ -451,7 +451,8 @@ def track_frame(tracker: Tracker, frame: int, frame_start_s, image, error: str |
 def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "polynomial",
                  mapping: str | None = None,
                  progress: Callable[[int, int], None] | None = None,
-                 flag_cut_glints: bool | None = None) -> TrackSummary:
+                 flag_cut_glints: bool | None = None,
+                 focus_detection: bool = False) -> TrackSummary:
     """Track every frame of a folder and write ``samples.csv`` atomically.
 
     Parameters
@@ -472,6 +473,10 @@ def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "p
         Polynomial mapping name; default the calibration's Eq. (1) mapping.
     progress : callable, optional
         ``progress(done, total)`` after every frame.
+    focus_detection : bool
+        :class:`~estimator.tracking.Tracker`'s: search each frame only around the glints the
+        last frame's samples used (faster on frames with clutter; samples may differ where a
+        glint appears outside the window).
     """
     calibration, mapping = tracking_calibration(folder, calibration, out_csv, method=method,
                                                 mapping=mapping, flag_cut_glints=flag_cut_glints,
@@ -480,7 +485,7 @@ def track_folder(folder, setup: Setup, calibration, out_csv, *, method: str = "p
     # The frames were taken with the sidecar's exposure and strobe where it gives them.
     setup = timing.apply(setup)
     tracker = Tracker(setup, calibration, method, mapping=mapping,
-                      flag_cut_glints=flag_cut_glints)
+                      flag_cut_glints=flag_cut_glints, focus_detection=focus_detection)
     total = len(timing.frame_start_s)
     samples = []
     busy = 0.0

@@ -181,8 +181,8 @@ def _full_scale_and_black(img: np.ndarray, sensor: Sensor, params: DetectionPara
 
 
 def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionParams,
-            noise: _NoiseModel | None, roi: tuple[int, int, int, int] | None = None
-            ) -> tuple[GlintDetections | None, _NoiseModel]:
+            noise: _NoiseModel | None, roi: tuple[int, int, int, int] | None = None,
+            drop_cut: bool = False) -> tuple[GlintDetections | None, _NoiseModel]:
     """:func:`detect_glints` on a checked frame, with ``noise`` as its noise model (measured
     on the frame when None). Returns the detections and the model used.
 
@@ -192,7 +192,8 @@ def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionPa
     along rows only), the noise model (when measured) on the whole frame, the band timing on
     the window's rows, and a component whose grown box touches a side of the window that is
     not the frame's border (it may reach beyond, or join another there) voids the window:
-    the detections are then None."""
+    the detections are then None; with ``drop_cut`` such components are dropped instead (the
+    others are still exactly the whole frame's)."""
     sensor = setup.sensor
     full_scale, black = _full_scale_and_black(img, sensor, params)
     kernel = _line_kernel(params.background_kernel_px)
@@ -216,10 +217,15 @@ def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionPa
     if found is None:
         return _empty(frame_index, noise.typical_sigma, noise.typical_threshold), noise
     labels, area, box_y0, box_y1, box_x0, box_x1 = found
-    if roi is not None and _touches_inner_side(box_y0, box_y1, box_x0, box_x1,
-                                               params.centroid_margin_px, roi, frame_shape):
-        return None, noise
-    comp = np.flatnonzero((area >= params.min_area_px) & (area <= params.max_area_px))
+    keep = (area >= params.min_area_px) & (area <= params.max_area_px)
+    if roi is not None:
+        cut = _inner_side(box_y0, box_y1, box_x0, box_x1, params.centroid_margin_px, roi,
+                          frame_shape)
+        if cut.any():
+            if not drop_cut:
+                return None, noise
+            keep &= ~cut
+    comp = np.flatnonzero(keep)
     if comp.size == 0:
         return _empty(frame_index, noise.typical_sigma, noise.typical_threshold), noise
 
@@ -242,8 +248,10 @@ def _detect(img: np.ndarray, setup: Setup, frame_index: int, params: DetectionPa
     if elongated.size:
         px = _gather(box.take(elongated), labels)
         value = _weights(px, img, top, noise, table, params)[1]
-        px2, split = _deblend(px, value, np.arange(px.n), top, params,
-                              glint_kernels.blend_maxima if glint_kernels.ENABLED else _blend_maxima)
+        if glint_kernels.ENABLED:
+            px2, split = glint_kernels.deblend(px, value, top, params)
+        else:
+            px2, split = _deblend(px, value, np.arange(px.n), top, params, _blend_maxima)
         if px2 is not None:
             replaced[elongated[split]] = True
             spots = _Spots.concat([spots, _measure_pixels(px2, img, top, noise, table,
@@ -354,12 +362,18 @@ def _measure(box: _Boxes, img, top, labels: _Labels, noise: _NoiseModel, table,
     return _Spots.concat(parts).take(np.argsort(np.concatenate([patch, pixel])))
 
 
-def _touches_inner_side(y0, y1, x0, x1, margin: int, roi, frame_shape) -> bool:
-    """Whether any of the boxes (window coordinates, inclusive ends), grown by ``margin``,
-    reaches a side of the window ``roi`` that is not the frame's border."""
+def _inner_side(y0, y1, x0, x1, margin: int, roi, frame_shape) -> np.ndarray:
+    """(c,) bool: which of the boxes (window coordinates, inclusive ends), grown by
+    ``margin``, reach a side of the window ``roi`` that is not the frame's border."""
     r0, r1, c0, c1 = roi
     height, width = frame_shape
-    return bool((r0 > 0 and (y0 <= margin).any())
-                or (r1 < height and (y1 + margin >= r1 - r0 - 1).any())
-                or (c0 > 0 and (x0 <= margin).any())
-                or (c1 < width and (x1 + margin >= c1 - c0 - 1).any()))
+    out = np.zeros(np.shape(y0), dtype=bool)
+    if r0 > 0:
+        out |= y0 <= margin
+    if r1 < height:
+        out |= y1 + margin >= r1 - r0 - 1
+    if c0 > 0:
+        out |= x0 <= margin
+    if c1 < width:
+        out |= x1 + margin >= c1 - c0 - 1
+    return out

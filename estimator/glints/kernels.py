@@ -1,9 +1,10 @@
 """Steps 2-6 of :mod:`estimator.glints.detector` after the top-hat, compiled with Numba (optional): the
 exact threshold and the connected components (:func:`components`), each component's centroid,
 shape and light (:func:`measure`), and the filters, strobe, time and flags of the spots that
-pass (:func:`finish`), one call each, and the separated maxima of an elongated spot
-(:func:`blend_maxima`) for :func:`estimator.glints.spots._deblend` in between (Monte Carlo
-clutter of a 4-spp render makes ~20 elongated spots a frame: 2.2 of its 3 ms in numpy).
+pass (:func:`finish`), one call each, and in between the split of every elongated spot into
+its separated maxima (:func:`deblend`, :func:`estimator.glints.spots._deblend` in one call;
+Monte Carlo clutter of a 4-spp render makes ~20 elongated spots a frame, 2.2 of its 3 ms in
+numpy, the prototype's 16-spp renders ~120).
 
 Without Numba (``pip install scet`` without the ``fast`` extra, a platform with no Numba wheel,
 or ``NUMBA_DISABLE_JIT=1``) the detector runs its numpy and OpenCV path
@@ -336,6 +337,70 @@ if numba is not None:
                 if not saddle - floor < blend_saddle * min(val[cand[a]], val[cand[b]]):
                     return cand[:0]
         return cand[:m].copy()
+
+
+    @_jit
+    def _deblend_kernel(starts, ys, xs, own, val, top, max_blend, blend_saddle):
+        """:func:`estimator.glints.spots._deblend`'s loop over the spots: each spot's separated
+        maxima (:func:`_blend_maxima_kernel`) and every pixel of a split spot given to its
+        nearest maximum (squared distance, the first on a tie: numpy's argmin). Returns the
+        number of maxima of each spot (n,) (0: not split) and each pixel's part (q,): the
+        index of its (spot, maximum) pair over the split spots in order, -1 where its spot
+        does not split."""
+        q, n = ys.size, starts.size
+        parts = np.zeros(n, dtype=np.int64)
+        part = np.full(q, -1, dtype=np.int64)
+        first = 0
+        for s in range(n):
+            a = starts[s]
+            b = starts[s + 1] if s + 1 < n else q
+            cand = _blend_maxima_kernel(ys[a:b], xs[a:b], own[a:b], val[a:b], top, max_blend,
+                                        blend_saddle)
+            m = cand.size
+            if m == 0:
+                continue
+            parts[s] = m
+            for i in range(a, b):
+                best, kbest = math.inf, 0
+                for k in range(m):
+                    dy = float(ys[i]) - float(ys[a + cand[k]])
+                    dx = float(xs[i]) - float(xs[a + cand[k]])
+                    d = dy * dy + dx * dx
+                    if d < best:
+                        best, kbest = d, k
+                part[i] = first + kbest
+            first += m
+        return parts, part
+
+
+def deblend(px, value, top, params):
+    """:func:`estimator.glints.spots._deblend` over every spot of ``px`` in one compiled call
+    (the Python loop cost ~20 us a spot, and the clutter of a prototype render makes ~120
+    elongated spots a frame): the same pixels in the same order, the same spots split.
+    Returns the new spots' pixels (:class:`estimator.glints.spots._Pixels`) and the indices
+    (s,) of the spots split, or (None, []) when none splits."""
+    from .spots import _Pixels
+
+    parts, part = _deblend_kernel(px.starts, px.ys, px.xs, px.own,
+                                  np.asarray(value, dtype=np.float64), top,
+                                  int(params.max_blend), float(params.blend_saddle))
+    split = np.flatnonzero(parts)
+    if split.size == 0:
+        return None, []
+    n = int(parts.sum())
+    mine = np.flatnonzero(part >= 0)
+    order = mine[np.argsort(part[mine], kind="stable")]  # part after part, pixel order kept
+    pid = part[order]
+    counts = np.bincount(pid, minlength=n)
+    starts = np.zeros(n, dtype=np.int64)
+    np.cumsum(counts[:-1], out=starts[1:])
+    ys, own = px.ys[order], px.own[order]
+    # Every part holds its own maximum, an own pixel: each part's own rows are non-empty.
+    own_pid, own_ys = pid[own], ys[own]
+    at = np.searchsorted(own_pid, np.arange(n))
+    return _Pixels(n, np.repeat(np.arange(n), counts), starts, ys, px.xs[order], own,
+                   px.usable[order], np.minimum.reduceat(own_ys, at),
+                   np.maximum.reduceat(own_ys, at), np.repeat(px.edge[split], parts[split])), split
 
 
 def blend_maxima(ys, xs, own, val, top, params) -> np.ndarray:

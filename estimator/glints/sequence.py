@@ -53,6 +53,20 @@ class GlintDetector:
     ``eye_speed_deg_s``: the largest displacement per degree of eye rotation, in any direction,
     of the setup's glints at primary gaze (the closed-form projection, :func:`window_margin_px`).
 
+    **Focus** (``focus``, off by default). Clutter (Monte Carlo fireflies of a render, specular
+    highlights, a lamp) spreads detections over the whole frame, and with them the window. With
+    ``focus`` the window is instead the box of the points the caller names after each frame
+    (:meth:`focus_on`; the tracker names the detections its accepted samples used and the
+    glints predicted at its last eye rotation), grown by ``roi_margin_px``: clutter far from
+    the eye is not searched. The rules
+    above still hold but one: a whole-frame search every ``refresh_frames`` frames, at once
+    when the window holds nothing, and after a frame with no identified glint
+    (:meth:`focus_on` with none); a component that touches the window's inner edge is dropped
+    (clutter crossing it would void nearly every window; a glint there has moved further than
+    the margin since the last frame). A glint outside the window is found at the next
+    whole-frame search; the window only ever drops detections, and those it keeps are exactly
+    the whole frame's.
+
     The detections carry the model's ``noise_dn`` and ``threshold_dn``: those of the frame it
     was measured on. :attr:`window` is the window the last frame was searched in (None: the
     whole frame); :attr:`frames`, :attr:`windowed` and :attr:`retried` count the frames, those
@@ -75,12 +89,14 @@ class GlintDetector:
     eye_speed_deg_s : float
         Eye rotation speed the default margin allows for
         (:data:`estimator.eye.EYE_SPEED_MAX_DEG_S`, 600°/s).
+    focus : bool
+        Window on the glints named by :meth:`focus_on` rather than on every detection.
     """
 
     def __init__(self, setup: Setup, params: DetectionParams = DetectionParams(), *,
                  refresh_frames: int = 30, level_drift: float = 0.05, track_roi: bool = True,
                  roi_margin_px: int | None = None,
-                 eye_speed_deg_s: float = EYE_SPEED_MAX_DEG_S):
+                 eye_speed_deg_s: float = EYE_SPEED_MAX_DEG_S, focus: bool = False):
         if isinstance(refresh_frames, bool) or not isinstance(refresh_frames, (int, np.integer)) \
                 or refresh_frames < 1:
             raise ValueError(f"refresh_frames must be an integer >= 1, got {refresh_frames!r}")
@@ -94,6 +110,7 @@ class GlintDetector:
         self.setup, self.params = setup, params
         self.refresh_frames, self.level_drift = int(refresh_frames), float(level_drift)
         self.track_roi, self.roi_margin_px = bool(track_roi), int(roi_margin_px)
+        self.focus = bool(focus)
         self.measured_at: int | None = None  # frame index of the model in use
         self.measurements = 0  # models measured so far
         self.window: tuple[int, int, int, int] | None = None  # (y0, y1, x0, x1) of the last frame
@@ -123,7 +140,8 @@ class GlintDetector:
         window = self._window(img.shape) if noise is not None else None
         det = None
         if window is not None:
-            det, _ = _detect(img, self.setup, frame_index, self.params, noise, window)
+            det, _ = _detect(img, self.setup, frame_index, self.params, noise, window,
+                             drop_cut=self.focus)
             if det is None or len(det) == 0:
                 det, window = None, None
                 self.retried += 1
@@ -151,8 +169,24 @@ class GlintDetector:
             return None  # hardly smaller than the frame: the copies would cost more
         return y0, y1, x0, x1
 
+    def focus_on(self, glints_px) -> None:
+        """With ``focus``: the next frame's window is the box of ``glints_px`` (k, 2) (u, v px,
+        the last frame's identified glints) grown by the margin; none (k = 0 or None): the
+        next frame is searched whole. Without ``focus`` nothing changes."""
+        if not self.focus:
+            return
+        g = None if glints_px is None else np.asarray(glints_px, dtype=np.float64)
+        if g is None or g.shape[0] == 0 or self._noise is None:
+            self._box = None
+            return
+        self._box = (float(g[:, 1].min()), float(g[:, 1].max()), float(g[:, 0].min()),
+                     float(g[:, 0].max()))
+
     def _grow(self, det: GlintDetections, whole: bool) -> None:
-        """The box of the glints since the last whole-frame search (reset by one)."""
+        """The box of the glints since the last whole-frame search (reset by one); with
+        ``focus`` the caller sets it (:meth:`focus_on`)."""
+        if self.focus:
+            return
         if len(det) == 0:
             if whole:
                 self._box = None

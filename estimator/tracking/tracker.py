@@ -96,6 +96,16 @@ class Tracker:
         lashes"). It needs the calibration's ``glint_flux`` for the rig's lights: ``True``
         refuses a calibration without it, ``None`` (the default) flags where the calibration
         has it (a calibration from images, spherical or conic), ``False`` never flags.
+    focus_detection : bool
+        Search each frame for glints only around the glints its last frame's accepted samples
+        used and those predicted at the last eye rotation (:meth:`focus_points`,
+        :class:`estimator.glints.GlintDetector` ``focus``; a whole-frame search every 30
+        frames, after a frame without an accepted sample or a dropped one, and where the
+        window holds nothing): clutter far from the eye is not detected. Off by default: bands
+        of clutter alone then fail as ``match_too_few_glints`` rather than
+        ``band_out_of_reach``, and a glint that appears outside the window waits for the next
+        whole-frame search (none did on the rendered datasets measured,
+        ``hardware/README.md``).
 
     Attributes
     ----------
@@ -121,7 +131,8 @@ class Tracker:
     def __init__(self, setup: Setup, calibration: Calibration, method: str = "polynomial", *,
                  mapping: str = "eq1_25", detection: DetectionParams = DetectionParams(),
                  matching: MatchParams = MatchParams(), prior: BandPrior | None = BandPrior(),
-                 cheap: bool = True, flag_cut_glints: bool | None = None):
+                 cheap: bool = True, flag_cut_glints: bool | None = None,
+                 focus_detection: bool = False):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
         if not isinstance(calibration, Calibration):
@@ -142,7 +153,7 @@ class Tracker:
         setup = ideal_setup(setup)
         # Detection reuses the sensor's noise model from frame to frame (measured again every
         # 30 frames, on a 5 % level drift, and after every reset of the stream).
-        self.detector = GlintDetector(setup, detection)
+        self.detector = GlintDetector(setup, detection, focus=focus_detection)
         # Glints predicted from the calibrated geometry, not the nominal one: the lighting pose
         # of the prototype is off by millimetres (a pixel or more per glint). One set of
         # calibrated fit problems for the stream: the matcher's orbit fits and the gaze fits of
@@ -210,7 +221,12 @@ class Tracker:
                         frame_index, self.last_frame_index, Reason.FRAME_OUT_OF_ORDER)
             return [failed_sample(frame_index, j, t, Reason.FRAME_OUT_OF_ORDER)
                     for (j, _), t in zip(bands, times)]
+        dropped = self.last_frame_index is not None and frame_index > self.last_frame_index + 1
         self.last_frame_index = frame_index
+        if dropped:
+            # The focused window allows for one frame of eye motion: after a gap the whole
+            # frame is searched.
+            self.detector.focus_on(None)
         try:
             reason = self.frame_check(frame)
             if reason is not None:
@@ -222,9 +238,12 @@ class Tracker:
             det = det.select(~det.has(NO_BAND)).undistorted(self.lens_camera)
             glints, strobes, flux = det.glints_px, det.strobe_index, det.intensity
             flag = self.flags_cut_glints
-            return [self.band(frame_index, self.of_strobe(glints, strobes, b[0]), b, t,
-                              flux[strobes == b[0]] if flag else None)
-                    for b, t in zip(bands, times)]
+            samples = [self.band(frame_index, self.of_strobe(glints, strobes, b[0]), b, t,
+                                 flux[strobes == b[0]] if flag else None)
+                       for b, t in zip(bands, times)]
+            if self.detector.focus:
+                self.detector.focus_on(self.focus_points(samples))
+            return samples
         except Exception as exc:  # the stream must survive any one frame; the reason is logged
             # A bug, not bad input: logged with its traceback, counted by the run's summary.
             log.error("frame %d: internal error %s: %s; its samples are NaN (%s)", frame_index,
@@ -232,6 +251,20 @@ class Tracker:
             self.reset()
             return [failed_sample(frame_index, j, t, internal_error(exc))
                     for (j, _), t in zip(bands, times)]
+
+    def focus_points(self, samples) -> np.ndarray | None:
+        """Where the next frame's glints are sought with ``focus_detection`` (k, 2): the
+        detections the accepted ``samples`` of this frame used, and every visible light's glint
+        predicted at the stream's last eye rotation (a light that comes into view next to the
+        others); None without an accepted sample (the next frame is searched whole)."""
+        used = [s.glints_px for s in samples if s.ok]
+        if not used:
+            return None
+        last = self.state.last
+        if self.follower is not None and last is not None:
+            pred, visible = self.follower.predict(last.angles_rad)
+            used.append(pred[visible & np.isfinite(pred).all(axis=1)])
+        return np.concatenate(used)
 
     @staticmethod
     def of_strobe(glints_px, strobes, j: int) -> np.ndarray:

@@ -620,6 +620,73 @@ def test_a_glint_outside_the_window_waits_for_the_whole_frame_search(setup, sequ
     assert found == [False, False, False, True]
 
 
+def _with_clutter(frame):
+    """The frame with two bright blobs far from the eye (a lamp's reflection, a firefly)."""
+    frame = frame.copy()
+    spot = (300 * np.outer(np.hanning(7), np.hanning(7))).astype(np.uint16)
+    frame[440:447, 600:607] += spot
+    frame[20:27, 20:27] += spot
+    return frame
+
+
+def test_focus_drops_far_clutter_and_keeps_the_glints_exactly(setup, sequence):
+    """With ``focus`` the window is the box of the glints the caller names (grown by the
+    margin), not of every detection: clutter in the frame's corners, which holds the plain
+    window at nearly the whole frame, is not searched, and the glints are exactly the whole
+    frame's detections of them."""
+    focused = GlintDetector(setup, focus=True)
+    plain, whole = GlintDetector(setup), GlintDetector(setup, track_roi=False)
+    for f, frame, g in sequence:
+        frame = _with_clutter(frame)
+        det, full = focused(frame, f), whole(frame, f)
+        plain(frame, f)
+        near = np.zeros(len(full), dtype=bool)
+        near[nearest(full, g)[0]] = True
+        assert near.sum() == len(g) == len(full) - 2  # the glints and the two blobs
+        assert_same_detections(det, full if f == 0 else full.select(near))
+        focused.focus_on(det.glints_px[nearest(det, g)[0]])
+    assert focused.windowed == len(sequence) - 1 and plain.windowed == 0
+    y0, y1, x0, x1 = focused.window
+    assert (y1 - y0) * (x1 - x0) < 0.4 * 480 * 640
+
+
+def test_focus_on_nothing_searches_the_next_frame_whole(setup, sequence):
+    """No identified glint (a lost eye): the next frame is searched whole; a detector
+    without ``focus`` ignores :meth:`focus_on`."""
+    focused, plain = GlintDetector(setup, focus=True), GlintDetector(setup)
+    (f0, frame0, g0), (f1, frame1, _), (f2, frame2, _) = sequence[:3]
+    for d in (focused, plain):
+        d(frame0, f0)
+    focused.focus_on(g0)
+    plain.focus_on(np.zeros((0, 2)))
+    focused(frame1, f1), plain(frame1, f1)
+    assert focused.window is not None and plain.window is not None
+    focused.focus_on(None)
+    focused(frame2, f2)
+    assert focused.window is None
+
+
+def test_focus_drops_a_spot_cut_by_the_window_instead_of_voiding_it(setup, sequence):
+    """A spot straddling the focused window's edge (here a glint that moved 10 px, past an
+    8 px margin) is dropped, the frame is not searched again; the other glints are the whole
+    frame's."""
+    focused = GlintDetector(setup, roi_margin_px=8, focus=True)
+    whole = GlintDetector(setup, track_roi=False)
+    (f0, frame0, g0), (f1, _, _) = sequence[0], sequence[1]
+    focused(frame0, f0)
+    whole(frame0, f0)
+    focused.focus_on(g0)
+    g = g0.copy()
+    moved = np.argmax(g[:, 0])
+    g[moved, 0] += 10.0
+    frame = banded_frame(setup, g, 0.8, 300.0, np.random.default_rng(5), frame_index=f1)
+    det, full = focused(frame, f1), whole(frame, f1)
+    assert focused.retried == 0 and focused.window is not None
+    keep = np.ones(len(full), dtype=bool)
+    keep[nearest(full, g[moved:moved + 1])[0]] = False
+    assert_same_detections(det, full.select(keep))
+
+
 @pytest.mark.parametrize("pad", [4, 7, 12])
 def test_a_tight_window_measures_like_the_whole_frame(setup, sequence, pad):
     """A window a few pixels around the glints, its edges inside the top-hat line's reach

@@ -349,3 +349,52 @@ def test_a_late_dropped_or_out_of_order_frame_is_flagged_not_a_lost_stream(setup
     yaw, pitch = setup.eye.angles_toward(frames[1][None])
     nxt = draw_frame(setup, 3, float(yaw[0]), float(pitch[0]), np.random.default_rng(2))
     assert any(s.ok for s in tr.process(nxt, 3))
+
+
+#: Focused and whole-frame detection give the same glints up to the window's offset (the
+#: centroid is computed in window coordinates, 1e-9 px; test_glints.SAME_SPOT_PX): estimates
+#: then agree far below any accuracy figure (1 um on the screen at 70 cm is 1e-4 deg).
+FOCUS_SAME_SCREEN_M = 1e-6
+
+
+def test_focused_detection_skips_far_clutter_and_gives_the_same_samples(setup, calibration):
+    """Tracker(focus_detection=True) searches each frame around the glints its last frame's
+    samples used: blobs in the frame's corners are not detected after the first frame, and
+    the samples are the whole-frame tracker's (reasons, lights; estimates to
+    FOCUS_SAME_SCREEN_M)."""
+    rng = np.random.default_rng(7)
+    yaw, pitch = setup.eye.angles_toward(setup.screen.grid(1, 1))
+    imgs = []
+    for f in range(5):
+        img = draw_frame(setup, f, float(yaw[0]) + 0.002 * f, float(pitch[0]), rng)
+        img[440:447, 600:607] += 400
+        img[10:17, 10:17] += 400
+        imgs.append(img)
+    plain, focused = Tracker(setup, calibration, "geometric"), \
+        Tracker(setup, calibration, "geometric", focus_detection=True)
+    for f, img in enumerate(imgs):
+        a, b = plain.process(img, f), focused.process(img, f)
+        assert [s.reason for s in a] == [s.reason for s in b]
+        assert any(s.ok for s in a)
+        for x, y in zip(a, b):
+            assert np.array_equal(x.light_index, y.light_index)
+            if x.ok:
+                assert np.abs(x.screen_xy_m - y.screen_xy_m).max() < FOCUS_SAME_SCREEN_M
+    assert focused.detector.windowed == len(imgs) - 1 and plain.detector.windowed == 0
+    y0, y1, x0, x1 = focused.detector.window
+    assert y0 > 17 and y1 < 440 and x0 > 17 and x1 < 600  # the blobs are outside
+
+
+def test_focused_detection_searches_the_whole_frame_after_a_dropped_frame(setup, calibration):
+    """The focused window allows for one frame of eye motion: after frames were dropped (a
+    gap in the indices) the next frame is searched whole, and the stream goes on."""
+    rng = np.random.default_rng(8)
+    yaw, pitch = setup.eye.angles_toward(setup.screen.grid(1, 1))
+    tr = Tracker(setup, calibration, "geometric", focus_detection=True)
+    windows = []
+    for f in (0, 1, 2, 6, 7):
+        out = tr.process(draw_frame(setup, f, float(yaw[0]), float(pitch[0]), rng), f)
+        assert any(s.ok for s in out)
+        windows.append(tr.detector.window)
+    assert windows[0] is None and windows[1] is not None and windows[2] is not None
+    assert windows[3] is None and windows[4] is not None
