@@ -29,6 +29,7 @@ from .eye import (
 )
 from .eyelids import read_eyelids
 from .geometry import Camera, RigidPose, look_at_rotation, rotation_from_vector, rotation_matrix
+from .scene_wire import read_wire_mirror
 from .setup import DistanceSensor, LightGroup, LightRig, Screen, Sensor, Setup, Strobe
 
 FORMAT = "scet-scene"
@@ -382,10 +383,15 @@ def _read_lights(top: _Table, eye: Eye) -> LightRig:
     for i, item in enumerate(raw):
         t = _Table(item, f"lights[{i}]", top.path)
         name = t.string("name", f"group{i}", required=False)
-        kind = t.string("kind", choices={"arc", "grid", "list"})
-        diameter = t.quantity("source_diameter", "length", default=0.4e-3, required=False,
+        kind = t.string("kind", choices={"arc", "grid", "list", "wire_mirror"})
+        diameter = t.quantity("source_diameter", "length", default=None, required=False,
                               lo=1e-6, hi=10e-3)
-        if kind == "arc":
+        emitter = None
+        if kind == "wire_mirror":
+            emitter = read_wire_mirror(t)
+            points, default_pivot = emitter.wire_axes_m, emitter.wire_axes_m[0]
+            diameter = emitter.wire_diameter_m if diameter is None else diameter
+        elif kind == "arc":
             count = t.integer("count", minimum=1, maximum=10000)
             radius = t.quantity("radius", "length", lo=1e-3, hi=1.0)
             span = t.quantity("span", "angle", lo=0.0, hi=2 * math.pi)
@@ -431,7 +437,8 @@ def _read_lights(top: _Table, eye: Eye) -> LightRig:
             default_pivot = points[0]
         pose = _read_pose(t.table("pose", required=False), default_pivot)
         t.finish()
-        groups.append(LightGroup(name, kind, points, pose, diameter / 2))
+        diameter = 0.4e-3 if diameter is None else diameter
+        groups.append(LightGroup(name, kind, points, pose, diameter / 2, emitter))
     return LightRig(tuple(groups))
 
 

@@ -28,7 +28,7 @@ LAYERS = {
         {"errors", "checks", "formats", "reasons"},
         {"geometry"},
         {"eye", "setup"},
-        {"eyelids"},
+        {"eyelids", "scene_wire"},
         {"scene", "banding", "metrics"},
         {"cornea"},
         {"calibration"},
