@@ -163,6 +163,14 @@ def cmd_study_aspheric(args) -> int:
     return 0
 
 
+def cmd_study_wire(args) -> int:
+    from scet_render.study.wire import write_wire_report
+
+    path = write_wire_report(args.report_dir, args.scene or "prototype_ov5647_wire")
+    print(f"report written to {path}")
+    return 0
+
+
 def add_parsers(sub) -> None:
     """Add ``design-lights`` and ``study`` to the ``scet`` subcommands."""
     scene_help = "scene file or built-in scene name (default: paper_sim)"
@@ -221,7 +229,13 @@ def add_parsers(sub) -> None:
                         "paper's), conic (Q calibrated; scet calibrate --cornea-model conic); "
                         "default sphere,conic")
     a.set_defaults(func=cmd_study_aspheric)
+    w = studies.add_parser("wire", help="the wire-wound mirror's glints against the point-source "
+                                        "model, solver level: reports/wire_mirror.md")
+    w.add_argument("scene", nargs="?", help="scene with one wire_mirror light group "
+                                            "(default: prototype_ov5647_wire)")
+    w.add_argument("--report-dir", type=Path, default=Path("reports"))
+    w.set_defaults(func=cmd_study_wire)
 
 
 __all__ = ["add_parsers", "rendered_band_shares", "cmd_design_lights", "cmd_study_events",
-           "cmd_study_aspheric", "cornea_models"]
+           "cmd_study_aspheric", "cmd_study_wire", "cornea_models"]
