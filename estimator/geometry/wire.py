@@ -77,7 +77,7 @@ from .wire_model import (
 __all__ = ["LedBeam", "WireMirror", "WireGeometryError", "WireGlints", "cylinder_reflection",
            "project_wire_glints", "project_wire_glints_conic", "wire_glint_flux",
            "enamelled_copper_reflectance", "fresnel_unpolarized", "COPPER_INDEX_850NM",
-           "eye_wire_glints", "setup_wire_mirrors",
+           "eye_wire_glints", "setup_wire_mirrors", "led_disk_glints",
            "ENAMEL_INDEX"]
 
 #: The alternation stops when the highlight moves less than this (m): 1e-13 m is 1e-10 of a
@@ -404,3 +404,40 @@ def setup_wire_mirrors(setup) -> list[tuple[int, int, WireMirror]]:
             out.append((i, first, g.emitter.posed(g.pose)))
         first += g.count
     return out
+
+
+def led_disk_glints(eye, camera: Camera, mirror: WireMirror, yaw_rad, pitch_rad, *,
+                    rings: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Centroids of the glints of an LED of finite size: each turn's glint averaged over points
+    spread evenly over the LED's emitting disk (``mirror.led_diameter_m``, facing its aim),
+    each point counted where its own glint is visible. A constant-radiance disk's glint is the
+    image of its area, so to first order its centroid is this uniform average (the two mirrors'
+    demagnification varies little across a 1 mm LED); it differs from the centre's glint where
+    the mapping curves or part of the disk's highlight leaves the strip.
+
+    Returns
+    -------
+    glints_px : (..., turns, 2) float
+        NaN where no point of the disk makes a visible glint.
+    share : (..., turns) float
+        The share of the disk's area whose glint is visible.
+    """
+    z = mirror.led_aim
+    helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = np.cross(helper, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    r = 0.5 * mirror.led_diameter_m
+    acc = wsum = total = 0.0
+    for i in range(rings):
+        rho = (i + 0.5) / rings
+        n = max(1, int(round(2 * np.pi * rho * rings)))
+        for a in np.arange(n) * 2 * np.pi / n:
+            p = mirror.led_position_m + r * rho * (np.cos(a) * x + np.sin(a) * y)
+            g = eye_wire_glints(eye, camera, replace(mirror, led_position_m=p), yaw_rad, pitch_rad)
+            w = (rho / n) * g.visible
+            acc = acc + w[..., None] * np.where(g.visible[..., None], g.glints_px, 0.0)
+            wsum = wsum + w
+            total = total + rho / n
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where((wsum > 0)[..., None], acc / wsum[..., None], np.nan), wsum / total
