@@ -283,9 +283,9 @@ def light_list_toml(p: MirrorParams = MirrorParams(), pose: dict | None = None) 
 #: The prototype scene's pose of the mirror group (scenes/prototype_ov5647.toml).
 PROTOTYPE_POSE = {"pivot_m": [-0.010, 0.020, -0.015], "rotation_axis": [1.0, 0.0, 0.0],
                   "rotation_deg": -45.0}
-#: The LED of scenes/prototype_ov5647_wire.toml (the group's local frame): the mirror image,
-#: across the arc plane, of the cornea centre at primary gaze under :data:`PROTOTYPE_POSE`.
-PROTOTYPE_LED_M = (0.0, 0.0417422, -0.0215421)
+#: The LED of scenes/prototype_ov5647_wire.toml (the group's local frame): the best single LED
+#: position of ``scet study wire --design`` under :data:`PROTOTYPE_POSE` (reports/wire_mirror.md).
+PROTOTYPE_LED_M = (0.0024, 0.04, -0.0265226)
 #: The LED's half-intensity angle (deg): an 850 nm part with a cos^1 lobe, e.g. Vishay
 #: VSMY1850 (datasheet 83397, ±60 deg); the paper's Osram part is not named.
 PROTOTYPE_LED_HALF_ANGLE_DEG = 60.0

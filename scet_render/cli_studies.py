@@ -166,7 +166,7 @@ def cmd_study_aspheric(args) -> int:
 def cmd_study_wire(args) -> int:
     from scet_render.study.wire import write_wire_report
 
-    path = write_wire_report(args.report_dir, args.scene or "prototype_ov5647_wire")
+    path = write_wire_report(args.report_dir, args.scene or "prototype_ov5647_wire", design=args.design)
     print(f"report written to {path}")
     return 0
 
@@ -234,6 +234,8 @@ def add_parsers(sub) -> None:
     w.add_argument("scene", nargs="?", help="scene with one wire_mirror light group "
                                             "(default: prototype_ov5647_wire)")
     w.add_argument("--report-dir", type=Path, default=Path("reports"))
+    w.add_argument("--design", action="store_true",
+                   help="also search the LED's position (a few minutes)")
     w.set_defaults(func=cmd_study_wire)
 
 

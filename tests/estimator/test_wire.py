@@ -284,3 +284,25 @@ def test_enamelled_copper_reflectance():
     r = enamelled_copper_reflectance(np.array([1.0, 0.5, 1e-6]))
     assert 0.94 < r[0] < 0.965
     assert 0.9 < r[1] < 1.0 and r[-1] > 0.99
+
+
+def test_rays_through_another_turn_or_the_strip_are_blocked(mirror):
+    """A ray from a highlight along the inner face, low enough to hit the next turn, is blocked;
+    the same ray lifted clear of the wire, or one straight toward the arc's centre, is not; a
+    ray out through the strip is blocked."""
+    from estimator.geometry import wire
+
+    k = 10
+    rho = mirror.wire_radius_m
+    inward = -mirror.radial[k]
+    tangent = np.cross(mirror.normal, mirror.radial[k])  # toward turn k + 1
+    W = mirror.wire_axes_m[k] + rho * inward
+    low = W + 5e-3 * tangent  # passes at the wire axes' height: through turn k + 1
+    high = W + 5e-3 * tangent + 3 * mirror.wire_diameter_m * inward
+    centre = mirror.center_m + 0.2e-3 * mirror.normal
+    out = mirror.wire_axes_m[k] + 10e-3 * mirror.radial[k]
+    T = mirror.turns
+    Ws = np.broadcast_to(W, (T, 3)).copy()
+    for X, blocked in ((low, True), (high, False), (centre, False), (out, True)):
+        got = wire._occluded(mirror, Ws, np.broadcast_to(X, (T, 3)))
+        assert got[k] == blocked
