@@ -31,6 +31,8 @@ from .eye import (
 from .eyelids import read_eyelids
 from .geometry import Camera, RigidPose, look_at_rotation, rotation_from_vector, rotation_matrix
 from .lens_keys import read_lens
+from .scene_checks import check_geometry
+from .scene_wire import read_wire_mirror
 from .setup import DistanceSensor, LightGroup, LightRig, Screen, Sensor, Setup, Strobe
 
 FORMAT = "scet-scene"
@@ -45,7 +47,6 @@ UNITS = {
 }
 
 # Sanity ranges in SI units: values outside are almost always a unit mistake.
-_EYE_CLEARANCE_M = 0.5e-3
 #: No number in a scene may exceed this in magnitude: squares of larger values (vector
 #: lengths) overflow, and nothing in an eye-tracking scene is within orders of magnitude of it.
 _MAX_ABS = 1e100
@@ -242,7 +243,7 @@ def parse_scene(text: str, source: str = "<string>") -> Setup:
                   screen=screen, distance_sensor=distance, description=description, source=source,
                   eyelids=eyelids,
                   source_sha256=hashlib.sha256(text.encode("utf-8")).hexdigest())
-    _check_geometry(setup, top)
+    check_geometry(setup, top)
     return setup
 
 
@@ -406,10 +407,15 @@ def _read_lights(top: _Table, eye: Eye) -> LightRig:
     for i, item in enumerate(raw):
         t = _Table(item, f"lights[{i}]", top.path)
         name = t.string("name", f"group{i}", required=False)
-        kind = t.string("kind", choices={"arc", "grid", "list"})
-        diameter = t.quantity("source_diameter", "length", default=0.4e-3, required=False,
+        kind = t.string("kind", choices={"arc", "grid", "list", "wire_mirror"})
+        diameter = t.quantity("source_diameter", "length", default=None, required=False,
                               lo=1e-6, hi=10e-3)
-        if kind == "arc":
+        emitter = None
+        if kind == "wire_mirror":
+            emitter = read_wire_mirror(t)
+            points, default_pivot = emitter.wire_axes_m, emitter.wire_axes_m[0]
+            diameter = emitter.wire_diameter_m if diameter is None else diameter
+        elif kind == "arc":
             count = t.integer("count", minimum=1, maximum=10000)
             radius = t.quantity("radius", "length", lo=1e-3, hi=1.0)
             span = t.quantity("span", "angle", lo=0.0, hi=2 * math.pi)
@@ -455,41 +461,6 @@ def _read_lights(top: _Table, eye: Eye) -> LightRig:
             default_pivot = points[0]
         pose = _read_pose(t.table("pose", required=False), default_pivot)
         t.finish()
-        groups.append(LightGroup(name, kind, points, pose, diameter / 2))
+        diameter = 0.4e-3 if diameter is None else diameter
+        groups.append(LightGroup(name, kind, points, pose, diameter / 2, emitter))
     return LightRig(tuple(groups))
-
-
-def _check_geometry(setup: Setup, top: _Table) -> None:
-    eye, cam = setup.eye, setup.camera
-    # Anything within reach of the cornea at any gaze (apex sphere) is inside the eye.
-    reach = eye.cornea_offset_m + eye.cornea_radius_m + _EYE_CLEARANCE_M
-    d_cam = np.linalg.norm(cam.position_m - eye.rotation_center_m)
-    if d_cam <= reach:
-        raise top.error("camera.position_m", f"camera {d_cam * 1e3:.2f} mm from the eye's rotation "
-                                             f"centre, inside the eye (needs > {reach * 1e3:.2f} mm)")
-    lights = setup.lights.positions_world_m
-    d_l = np.linalg.norm(lights - eye.rotation_center_m, axis=1)
-    if np.any(d_l <= reach):
-        i = int(np.argmin(d_l))
-        g = int(setup.lights.group_index[i])
-        first = sum(grp.count for grp in setup.lights.groups[:g])
-        raise top.error(f"lights[{g}]", f"light {i - first} of this group (light {i} overall) lies {d_l[i] * 1e3:.2f} mm from the eye's rotation "
-                                  f"centre, inside the eye (needs > {reach * 1e3:.2f} mm)")
-    if not np.all(np.isfinite(lights)):
-        raise top.error("lights", "light positions are not finite")
-    apex_px, depth = cam.project(eye.apex())
-    center_px, _ = cam.project(eye.cornea_center(0.0, 0.0))
-    if not (depth > 0 and cam.in_image(apex_px)):
-        raise top.error("camera", "the camera cannot see the cornea: the corneal apex at primary "
-                                  f"gaze projects to {np.round(apex_px, 1)}, outside the "
-                                  f"{cam.width_px}x{cam.height_px} image or behind the camera")
-    if not np.all(np.isfinite(center_px)):
-        raise top.error("camera", "the camera cannot see the cornea (cornea centre behind it)")
-    # The camera must face the front of the cornea: the apex at primary gaze must be on the
-    # camera's side of the corneal sphere (a camera behind or beside the eye sees no glints).
-    axis = eye.apex() - eye.cornea_center(0.0, 0.0)
-    axis /= np.linalg.norm(axis)
-    if (cam.position_m - eye.cornea_center(0.0, 0.0)) @ axis <= eye.cornea_radius_m:
-        raise top.error("camera.position_m", "the camera cannot see the cornea: it must sit in front of "
-                                             "the corneal apex (the eye looks along -z), got "
-                                             f"{np.round(cam.position_m, 4).tolist()} m")

@@ -103,6 +103,10 @@ class LightGroup:
     points_local_m: np.ndarray
     pose: RigidPose = field(default_factory=RigidPose)
     source_radius_m: float = 0.2e-3
+    #: The physical emitter behind the points, in the group's local frame, where the group
+    #: models one (``kind = "wire_mirror"``: an :class:`estimator.geometry.wire.WireMirror`
+    #: whose turns' axes are ``points_local_m``); None for plain point lights.
+    emitter: object = None
 
     def __post_init__(self):
         p = as_points(self.points_local_m, "points_local_m").reshape(-1, 3).copy()
@@ -119,7 +123,8 @@ class LightGroup:
 
     def moved(self, pose: RigidPose) -> "LightGroup":
         """The same group with another pose."""
-        return LightGroup(self.name, self.kind, self.points_local_m, pose, self.source_radius_m)
+        return LightGroup(self.name, self.kind, self.points_local_m, pose, self.source_radius_m,
+                          self.emitter)
 
 
 @dataclass(frozen=True, slots=True)

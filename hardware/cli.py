@@ -125,7 +125,8 @@ def cmd_hardware(args) -> int:
                          wire_diameter_mm=args.wire_mm)
         out = write_mirror(args.out or Path("out/mirror"), p)
         print(f"mirror written to {out['stl']} ({out['volume_mm3']:.0f} mm^3, watertight); "
-              f"{p.turns} glint sources to {out['lights']}")
+              f"{p.turns} glint sources to {out['lights']}; the wire_mirror group (strip, wire, "
+              f"LED) to {out['wire_lights']}")
         return 0
     plan = strobe_plan(args)
     s = plan.sensor

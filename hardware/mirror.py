@@ -33,7 +33,7 @@ import numpy as np
 from estimator.formats import atomic_file, atomic_write
 
 __all__ = ["MirrorParams", "turn_angles_rad", "turn_positions_local_m", "mirror_outline_mm",
-           "turn_clearance_mm", "mirror_mesh", "light_list_toml", "write_mirror"]
+           "turn_clearance_mm", "mirror_mesh", "light_list_toml", "wire_group_toml", "write_mirror"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -283,13 +283,51 @@ def light_list_toml(p: MirrorParams = MirrorParams(), pose: dict | None = None) 
 #: The prototype scene's pose of the mirror group (scenes/prototype_ov5647.toml).
 PROTOTYPE_POSE = {"pivot_m": [-0.010, 0.020, -0.015], "rotation_axis": [1.0, 0.0, 0.0],
                   "rotation_deg": -45.0}
+#: The LED of scenes/prototype_ov5647_wire.toml (the group's local frame): the best single LED
+#: position of ``scet study wire --design`` under :data:`PROTOTYPE_POSE` (reports/wire_mirror.md).
+PROTOTYPE_LED_M = (0.0024, 0.04, -0.0265226)
+#: The LED's half-intensity angle (deg): an 850 nm part with a cos^1 lobe, e.g. Vishay
+#: VSMY1850 (datasheet 83397, ±60 deg); the paper's Osram part is not named.
+PROTOTYPE_LED_HALF_ANGLE_DEG = 60.0
+
+
+def wire_group_toml(p: MirrorParams = MirrorParams(), pose: dict | None = None, *,
+                    led_position_m=PROTOTYPE_LED_M,
+                    led_half_angle_deg: float = PROTOTYPE_LED_HALF_ANGLE_DEG,
+                    led_diameter_mm: float = 0.5) -> str:
+    """A ``[[lights]]`` group of ``kind = "wire_mirror"`` (the scene format): the same mirror
+    as :func:`light_list_toml`'s turns, with its strip, wire and one LED
+    (``estimator.scene_wire``)."""
+    p.check()
+    lines = [f"# {p.turns} turns of {p.wire_diameter_mm:g} mm wire on a {p.span_deg:g} deg arc of "
+             f"radius {p.radius_mm:g} mm, lit by one LED: scet hardware mirror",
+             "[[lights]]", 'name = "wire_mirror"', 'kind = "wire_mirror"',
+             f"radius_mm = {p.radius_mm!r}", f"span_deg = {p.span_deg!r}",
+             f"first_m = {[float(x) for x in p.first_m]}",
+             f"center_direction = {[float(x) for x in p.center_direction]}",
+             f"normal = {[float(x) for x in p.normal]}",
+             f"strip_width_mm = {p.width_mm!r}", f"strip_thickness_mm = {p.thickness_mm!r}",
+             f"turns = {p.turns}", f"wire_diameter_mm = {p.wire_diameter_mm!r}",
+             'winding = "end_to_end"',
+             f"led_position_m = {[float(x) for x in led_position_m]}",
+             f"led_half_angle_deg = {float(led_half_angle_deg)!r}",
+             f"led_diameter_mm = {float(led_diameter_mm)!r}"]
+    if pose:
+        lines.append("[lights.pose]")
+        for k, v in pose.items():
+            lines.append(f"{k} = {list(v) if isinstance(v, (list, tuple)) else v}")
+    return "\n".join(lines) + "\n"
 
 
 def write_mirror(out_dir, p: MirrorParams = MirrorParams(), pose: dict | None = PROTOTYPE_POSE) -> dict:
-    """Write ``mirror.stl`` (mm) and ``lights.toml`` into ``out_dir``; the paths."""
+    """Write ``mirror.stl`` (mm), ``lights.toml`` (the turns as point sources) and
+    ``wire_lights.toml`` (the ``wire_mirror`` group: strip, wire and LED) into ``out_dir``;
+    the paths."""
     out = Path(out_dir)
     mesh = mirror_mesh(p)
     with atomic_file(out / "mirror.stl") as tmp:
         mesh.export(tmp, file_type="stl")
     lights = atomic_write(out / "lights.toml", light_list_toml(p, pose))
-    return {"stl": out / "mirror.stl", "lights": lights, "volume_mm3": float(mesh.volume)}
+    wire = atomic_write(out / "wire_lights.toml", wire_group_toml(p, pose))
+    return {"stl": out / "mirror.stl", "lights": lights, "wire_lights": wire,
+            "volume_mm3": float(mesh.volume)}

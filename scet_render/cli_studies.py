@@ -182,6 +182,14 @@ def cmd_study_lens(args) -> int:
     return 0
 
 
+def cmd_study_wire(args) -> int:
+    from scet_render.study.wire import write_wire_report
+
+    path = write_wire_report(args.report_dir, args.scene or "prototype_ov5647_wire", design=args.design)
+    print(f"report written to {path}")
+    return 0
+
+
 def add_parsers(sub) -> None:
     """Add ``design-lights`` and ``study`` to the ``scet`` subcommands."""
     scene_help = "scene file or built-in scene name (default: paper_sim)"
@@ -265,7 +273,15 @@ def add_parsers(sub) -> None:
     lens.add_argument("--poses", type=integer(1, 3), default=3, help="fixations per condition (1-3)")
     lens.add_argument("--report-dir", type=Path, default=Path("reports"))
     lens.set_defaults(func=cmd_study_lens)
+    w = studies.add_parser("wire", help="the wire-wound mirror's glints against the point-source "
+                                        "model, solver level: reports/wire_mirror.md")
+    w.add_argument("scene", nargs="?", help="scene with one wire_mirror light group "
+                                            "(default: prototype_ov5647_wire)")
+    w.add_argument("--report-dir", type=Path, default=Path("reports"))
+    w.add_argument("--design", action="store_true",
+                   help="also search the LED's position (a few minutes)")
+    w.set_defaults(func=cmd_study_wire)
 
 
 __all__ = ["add_parsers", "rendered_band_shares", "cmd_design_lights", "cmd_study_events",
-           "cmd_study_aspheric", "cmd_study_lens", "cornea_models"]
+           "cmd_study_aspheric", "cmd_study_lens", "cmd_study_wire", "cornea_models"]

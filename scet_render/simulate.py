@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import json
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from estimator.errors import InputError
 from estimator.formats import GLINTS_FORMAT, GLINTS_VERSION, atomic_file
+from estimator.geometry.wire import eye_wire_glints, setup_wire_mirrors
 from estimator.setup import Setup
 
 SIM_FORMAT, SIM_VERSION = GLINTS_FORMAT, GLINTS_VERSION
@@ -70,11 +71,26 @@ def ground_truth_glints(setup: Setup, yaw_rad, pitch_rad, *, lights_world_m=None
                         cornea_radius_m: float | None = None):
     """Noise-free glints for eye rotations (Fick angles, any batch shape).
 
+    The turns of a ``wire_mirror`` light group are the LED seen in each wire turn
+    (:func:`estimator.geometry.wire.eye_wire_glints`, two bounces) unless ``lights_world_m``
+    overrides the lights (then every light is a point).
+
     Returns ``(glints_px (..., n, 2), visible (..., n), cornea_center_m (..., 3))``.
     """
     lights = setup.lights_world_m if lights_world_m is None else lights_world_m
-    return setup.eye.glints(setup.camera, lights, yaw_rad, pitch_rad,
-                            cornea_radius_m=cornea_radius_m)
+    glints, visible, center = setup.eye.glints(setup.camera, lights, yaw_rad, pitch_rad,
+                                               cornea_radius_m=cornea_radius_m)
+    wires = setup_wire_mirrors(setup) if lights_world_m is None else []
+    if wires:
+        glints, visible = np.array(glints), np.array(visible)
+        eye = setup.eye
+        if cornea_radius_m is not None:
+            eye = replace(eye, cornea_radius_m=float(cornea_radius_m))
+        for _, first, mirror in wires:
+            w = eye_wire_glints(eye, setup.camera, mirror, yaw_rad, pitch_rad)
+            glints[..., first:first + mirror.turns, :] = w.glints_px
+            visible[..., first:first + mirror.turns] = w.visible
+    return glints, visible, center
 
 
 def feature_noise(shape, noise_px: float, model: str, rng: np.random.Generator) -> np.ndarray:

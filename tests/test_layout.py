@@ -28,7 +28,7 @@ LAYERS = {
         {"errors", "checks", "formats", "reasons"},
         {"geometry", "lens"},
         {"eye", "setup"},
-        {"eyelids", "lens_keys"},
+        {"eyelids", "lens_keys", "scene_checks", "scene_wire"},
         {"scene", "banding", "metrics"},
         {"cornea"},
         {"calibration"},

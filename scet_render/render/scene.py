@@ -51,6 +51,7 @@ import numpy as np
 
 from estimator.eye import eye_rotation_matrix
 from estimator.geometry import Camera
+from estimator.geometry.wire import setup_wire_mirrors
 from estimator.setup import Setup
 
 from .cornea_bsdf import CORNEA_BSDF_TYPE, REFLECT_PROBABILITY, register_cornea_bsdf
@@ -79,6 +80,7 @@ from .meshes import (
 )
 from .mnee import light_table, mnee_radiance, pose_state, to_drjit
 from .mnee_kernels import mnee_integrator
+from .wire_mirror import wire_mirror_objects
 
 log = logging.getLogger(__name__)
 
@@ -222,7 +224,16 @@ def describe_scene(setup: Setup, options: SceneOptions = SceneOptions(), *, spp:
         objects["cornea"] = {"type": "sphere", "to_world": T["cornea"], "bsdf": cornea_bsdf}
     L = options.light_radiance
     radii = [g.source_radius_m for g in setup.lights.groups for _ in range(g.count)]
+    # A wire-wound mirror draws its strip, wire and LED instead of its point lights.
+    drawn = np.ones(len(radii), dtype=bool)
+    for gi, first, mirror in setup_wire_mirrors(setup):
+        more, more_meshes = wire_mirror_objects(mirror, f"wire{gi}", radiance=L, split=split)
+        objects.update(more)
+        meshes.update(more_meshes)
+        drawn[first:first + mirror.turns] = False
     for i, (radius, p) in enumerate(zip(radii, setup.lights_world_m)):
+        if not drawn[i]:
+            continue
         objects[f"light_{i:03d}"] = {
             "type": "sphere", "center": [float(c * SCENE_UNITS_PER_M) for c in p],
             "radius": float(radius * SCENE_UNITS_PER_M),
