@@ -235,13 +235,26 @@ def parse_scene(text: str, source: str = "<string>") -> Setup:
     lights = _read_lights(top, eye)
     lid_table = top.table("eyelids", required=False)
     eyelids = read_eyelids(lid_table, eye, screen) if lid_table is not None else None
+    appearance = _read_appearance(top)
     top.finish()
     setup = Setup(name=name, camera=camera, sensor=sensor, eye=eye, lights=lights, strobe=strobe,
                   screen=screen, distance_sensor=distance, description=description, source=source,
-                  eyelids=eyelids,
+                  eyelids=eyelids, appearance=appearance,
                   source_sha256=hashlib.sha256(text.encode("utf-8")).hexdigest())
     _check_geometry(setup, top)
     return setup
+
+
+def _read_appearance(top: _Table) -> tuple | None:
+    """The ``[appearance]`` table as sorted (key, value) pairs, its values checked to be numbers
+    or booleans only; the renderer reads the keys (:mod:`scet_render.render.textures`)."""
+    t = top.table("appearance", required=False)
+    if t is None:
+        return None
+    for key, value in t.data.items():
+        if not isinstance(value, (bool, int, float)):
+            raise t.error(key, f"expected a number or a boolean, got {value!r}")
+    return tuple(sorted(t.data.items()))
 
 
 def _read_eye(t: _Table) -> Eye:

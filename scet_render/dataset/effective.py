@@ -67,7 +67,8 @@ class EffectiveScene(NamedTuple):
 #: Setup fields added after datasets were first written, with the value that reproduces the
 #: older setups: a field at that value is left out of the fingerprint, so that datasets
 #: rendered before it existed (byte-identical frames) still resume and compare equal.
-_LATER_FIELDS = {("Eye", "cornea_asphericity"): 0.0, ("Setup", "eyelids"): None}
+_LATER_FIELDS = {("Eye", "cornea_asphericity"): 0.0, ("Setup", "eyelids"): None,
+                 ("Setup", "appearance"): None}
 
 
 def _at_older_value(obj, name: str) -> bool:
