@@ -31,6 +31,7 @@ from estimator.inputs import read_frame
 from estimator.setup import Setup
 
 from ..render import SceneOptions, SensorModel
+from ..render.textures import read_appearance
 from .format import (
     FRAMES_DIR,
     LABELS_NAME,
@@ -134,6 +135,7 @@ def prepare_dataset(setup: Setup, out_dir, *, frames: int, spp: int = 16,
     if variant is not None and not isinstance(variant, str):
         raise ValueError(f"variant must be a string or None, got {variant!r}")
     SceneOptions(eyelid_openness=eyelid_openness)  # checks it (ValueError) before any work
+    read_appearance(setup)  # the scene's [appearance] table (SceneError), before any work
     if eyelid_openness is None and setup.eyelids is not None:
         # No lids rendered: none in the labels either (nothing hides a glint).
         setup = dataclasses.replace(setup, eyelids=None)
