@@ -47,7 +47,7 @@ import math
 import numpy as np
 
 from .layout import IRIS_OVERLAP, PUPIL_OFFSET_M, SCENE_UNITS_PER_M
-from .textures import iris_albedo
+from .textures import iris_albedo, iris_lookup
 
 #: Reverse-Snell steps that start the solve, then damped Newton iterations (connect's notes).
 #: On 200 random pairs of iris points and paper_sim lights (tests/scet_render/test_mnee.py),
@@ -123,7 +123,7 @@ def to_drjit(state: dict, mi) -> dict:
 def light_table(setup, options, layout, mi, iris=None) -> dict:
     """The scene's constants for :func:`mnee_radiance`: the strobe lights as float64 Dr.Jit
     arrays (``center`` (K) points, ``radius`` (K), in cm, ``count`` K), the iris and pupil disks
-    (radii, the pupil's offset, albedos; ``iris``: (mean albedo, textured), default untextured)."""
+    (radii, the pupil's offset, albedos; ``iris``: (mean albedo, texture or None)))."""
     import drjit as dr
 
     F64 = dr.float64_array_t(mi.Float)
@@ -137,7 +137,7 @@ def light_table(setup, options, layout, mi, iris=None) -> dict:
             "pupil_cm": float(options.pupil_radius_m * SCENE_UNITS_PER_M),
             "pupil_offset_cm": float(PUPIL_OFFSET_M * SCENE_UNITS_PER_M),
             "iris_albedo": float(iris[0]) if iris else float(options.iris_albedo),
-            "iris_textured": bool(iris[1]) if iris else False,
+            **iris_lookup(mi, iris[1] if iris else None),
             "pupil_albedo": float(options.pupil_albedo)}
 
 
@@ -454,7 +454,7 @@ def mnee_back(mi, scene, lanes: dict, u_light, u_point, state, lights, eta: floa
     shadow.maxt = mi.Float(dr.norm(z - sol["y"]) * (1.0 - 1e-4))
     active &= ~scene.ray_test(shadow, active)
     albedo = dr.select(lanes["on_pupil"], lights["pupil_albedo"],
-                       iris_albedo(mi, scene, state, lights, x))
+                       iris_albedo(mi, state, lights, x))
     f_cos = F64(albedo) * (1.0 / math.pi) * cos_x
     t_y = 1.0 - _fresnel(sol["cos_out"], eta)
     geometry = sol["domega_dperp"] * facing

@@ -52,7 +52,8 @@ import numpy as np
 
 from estimator.errors import SceneError
 
-__all__ = ["Appearance", "read_appearance", "appearance_table", "iris_albedo", "iris_texture", "skin_texture",
+__all__ = ["Appearance", "read_appearance", "appearance_table", "iris_albedo", "iris_lookup",
+           "iris_texture", "skin_texture",
            "sclera_texture", "skin_uv", "IRIS_TEXELS", "SCLERA_TEXELS", "SKIN_TEXELS",
            "SKIN_TILE_M"]
 
@@ -397,22 +398,46 @@ def _splat(dark, spots, d_theta, d_phi) -> None:
 # --------------------------------------------------------------------------- MNEE
 
 
-def iris_albedo(mi, scene, state, lights, x):
-    """The iris's albedo at shading points ``x`` (Array3f64, scene units): the constant
-    ``lights["iris_albedo"]``, or with ``lights["iris_textured"]`` the iris BSDF's own
-    reflectance texture (the scene's ``iris`` shape, the same lookup the path tracer makes)
-    at the disk's texture coordinates of x (u = r / R, v = azimuth / 2 pi from its local x
-    axis toward y), as mi.Float."""
+def iris_lookup(mi, texture) -> dict:
+    """The entries :func:`iris_albedo` reads from MNEE's light table: the iris texture
+    (rows, columns) flattened to an mi.Float and its shape; None for an untextured iris."""
+    if texture is None:
+        return {"iris_texels": None, "iris_shape": None}
+    return {"iris_texels": mi.Float(np.ascontiguousarray(texture, np.float32).ravel()),
+            "iris_shape": tuple(int(n) for n in texture.shape)}
+
+
+def iris_albedo(mi, state, lights, x):
+    """The iris's albedo at shading points ``x`` (Array3f64, scene units), as mi.Float: the
+    constant ``lights["iris_albedo"]``, or where ``lights["iris_texels"]`` holds the iris
+    texture (flattened, ``lights["iris_shape"]`` (rows, columns)), its bilinear lookup with
+    wrapping, as Mitsuba's ``bitmap`` makes it (filter ``bilinear``, wrap ``repeat``), at the
+    disk's texture coordinates of x (u = r / R, v = azimuth / 2 pi from its local x axis
+    toward y). A plain array lookup, so that MNEE's light table holds arrays only;
+    tests/scet_render/test_textures.py holds it to the iris BSDF's own lookup at Mitsuba's
+    intersections."""
     import drjit as dr
 
-    if not lights["iris_textured"]:
+    texels = lights.get("iris_texels")
+    if texels is None:
         return lights["iris_albedo"]
-    bsdf = next(s for s in scene.shapes() if s.id() == "iris").bsdf()
+    rows, cols = lights["iris_shape"]
     rel = x - (state["center"] + state["gaze"] * state["limbus"])
     lx = dr.dot(rel, state["iris_x"]) * (1.0 / lights["iris_cm"])
     ly = dr.dot(rel, state["iris_y"]) * (1.0 / lights["iris_cm"])
     v = dr.atan2(ly, lx) * (0.5 / math.pi)
-    v = dr.select(v < 0, v + 1.0, v)
-    si = dr.zeros(mi.SurfaceInteraction3f, dr.width(lx))
-    si.uv = mi.Point2f(mi.Float(dr.sqrt(lx * lx + ly * ly)), mi.Float(v))
-    return bsdf.eval_diffuse_reflectance(si).x
+    v = mi.Float(dr.select(v < 0, v + 1.0, v))
+    u = mi.Float(dr.sqrt(lx * lx + ly * ly))
+    px, py = u * cols - 0.5, v * rows - 0.5
+    x0, y0 = dr.floor(px), dr.floor(py)
+    fx, fy = px - x0, py - y0
+
+    def wrap(i, n):  # i in [-1, n]: u and v lie in [0, 1] (u up to the disk's rim)
+        i = mi.Int32(i)
+        return mi.UInt32(dr.select(i < 0, i + n, dr.select(i >= n, i - n, i)))
+
+    c0, c1 = wrap(x0, cols), wrap(x0 + 1, cols)
+    r0, r1 = wrap(y0, rows) * cols, wrap(y0 + 1, rows) * cols
+    t00, t01 = dr.gather(mi.Float, texels, r0 + c0), dr.gather(mi.Float, texels, r0 + c1)
+    t10, t11 = dr.gather(mi.Float, texels, r1 + c0), dr.gather(mi.Float, texels, r1 + c1)
+    return dr.lerp(dr.lerp(t00, t01, fx), dr.lerp(t10, t11, fx), fy)

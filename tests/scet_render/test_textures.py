@@ -309,7 +309,7 @@ def test_mnee_meets_the_texture_the_path_tracer_sees(mi, paper):
     hit = np.asarray(si.shape == mi.ShapePtr(iris), bool)
     seen = np.asarray(iris.bsdf().eval_diffuse_reflectance(si).x, np.float64)
     V64 = dr.float64_array_t(mi.Vector3f)
-    ours = np.asarray(iris_albedo(mi, es.scene, state, lights,
+    ours = np.asarray(iris_albedo(mi, state, lights,
                                   V64(*(dr.float64_array_t(mi.Float)(x[:, k]) for k in range(3)))),
                       np.float64)
     assert hit.mean() > 0.99
