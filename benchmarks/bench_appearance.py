@@ -13,7 +13,8 @@ ground-truth pixel where it is visible):
   per band (a band: one strobe sample), and what part of the eye they lie on
   (:func:`scet_render.render.region_labels` at the frame's first pulse pose);
 * e_f: the RMS per-axis error (px) of the detections matched to a labelled glint;
-* found: the share of visible labelled glints with a detection within ``--radius-px``;
+* found: the share of the glints each band should show (visible, on the rows its whole pulse
+  lights) with a detection within ``--radius-px``;
 * valid: the tracker's share of valid samples (polynomial gaze) and its mean error.
 
 Usage::
@@ -53,7 +54,15 @@ def detection_figures(setup, test_dir: Path, radius_px: float, params=DetectionP
         det = detect_glints(img, setup, frame, params)
         truth = np.concatenate([lb.glints_px[lb.glints_visible] for lb in labels])
         truth = truth[np.isfinite(truth).all(axis=1)]
+        # The glints each band should show: visible, on the rows its whole pulse lights.
+        in_band = []
+        for lb in labels:
+            g = lb.glints_px[lb.glints_visible]
+            g = g[np.isfinite(g).all(axis=1)]
+            in_band.append(g[(g[:, 1] >= lb.full_rows[0]) & (g[:, 1] < lb.full_rows[1] - 1)])
+        in_band = np.concatenate(in_band)
         bands += len(labels)
+        wanted += len(in_band)
         pts = det.glints_px
         if len(pts) and len(truth):
             d = np.linalg.norm(pts[:, None, :] - truth[None, :, :], axis=2)
@@ -61,10 +70,11 @@ def detection_figures(setup, test_dir: Path, radius_px: float, params=DetectionP
             hit = d[np.arange(len(pts)), nearest] <= radius_px
             err.append(pts[hit] - truth[nearest[hit]])
             clutter.extend((frame, *p) for p in pts[~hit])
-            found += int((d.min(axis=0) <= radius_px).sum())
+            if len(in_band):
+                near = np.linalg.norm(pts[:, None, :] - in_band[None, :, :], axis=2).min(axis=0)
+                found += int((near <= radius_px).sum())
         else:
             clutter.extend((frame, *p) for p in pts)
-        wanted += len(truth)
     e = np.concatenate(err) if err else np.zeros((0, 2))
     return {"bands": bands, "clutter": clutter, "clutter_per_band": len(clutter) / max(bands, 1),
             "e_f_px": float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan"),
@@ -80,15 +90,38 @@ def clutter_regions(setup, clutter, labels_by_key):
     if not clutter:
         return {}
     r = BandedRenderer(setup, spp=1)
-    counts = {}
+    counts, by_frame = {}, {}
     for frame, u, v in clutter:
-        lb = min((lb for (f, _), lb in labels_by_key.items() if f == frame),
-                 key=lambda lb: lb.strobe)
-        lab = region_labels(r, lb.yaw_rad, lb.pitch_rad)
-        k = lab[int(round(v)), int(round(u))]
+        if frame not in by_frame:
+            lb = min((lb for (f, _), lb in labels_by_key.items() if f == frame),
+                     key=lambda lb: lb.strobe)
+            by_frame[frame] = region_labels(r, lb.yaw_rad, lb.pitch_rad)
+        k = by_frame[frame][int(round(v)), int(round(u))]
         name = REGIONS[k] if k >= 0 else "other"
         counts[name] = counts.get(name, 0) + 1
     return counts
+
+
+def frame_cost(setup, spp: int, rounds: int) -> None:
+    """Seconds per banded frame (the full-size setup, fixations, frame 1) with textures off and
+    on, alternated ``rounds`` times after a warm-up frame each; the ratio per round."""
+    from scet_render.dataset.writer import dataset_trajectory
+    from scet_render.render import BandedRenderer
+
+    traj = dataset_trajectory(setup, "fixations", 2, 0)
+    r = {t: BandedRenderer(dataclasses.replace(setup, appearance=(("textured", t),)), spp=spp)
+         for t in (False, True)}
+    for t in r:
+        r[t].render_frame(traj, 0)
+    for k in range(rounds):
+        sec = {}
+        for t in r:
+            t0 = time.perf_counter()
+            r[t].render_frame(traj, 1)
+            sec[t] = time.perf_counter() - t0
+        print(f"cost round {k}: {setup.camera.width_px}x{setup.camera.height_px}, {spp} spp: "
+              f"off {sec[False]:.2f} s, on {sec[True]:.2f} s a frame, on / off "
+              f"{sec[True] / sec[False]:.3f}", flush=True)
 
 
 def main(argv=None) -> int:
@@ -103,8 +136,15 @@ def main(argv=None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--calib-grid", type=int, default=5, help="n: an n x n calibration")
     p.add_argument("--out", type=Path, default=Path("/tmp/bench_appearance"))
+    p.add_argument("--cost-rounds", type=int, default=0,
+                   help="only time full-size frames, textures off and on, this many rounds")
+    p.add_argument("--min-area-px", type=int, nargs="*", default=[1, 2],
+                   help="detector min_area_px values to measure clutter, e_f, found with")
     args = p.parse_args(argv)
     full = load_scene(args.scene)
+    if args.cost_rounds:
+        frame_cost(full, args.spp, args.cost_rounds)
+        return 0
     text = Path(full.source).read_text() if Path(full.source).is_file() else None
     setup = scaled_setup(full, 2)
     cfg = ValidationConfig(scale=2, spp=args.spp, cornea="dielectric", frames=args.frames,
@@ -122,6 +162,13 @@ def main(argv=None) -> int:
         sset, test_dir = run.settings[16]
         fig = detection_figures(sset, test_dir, args.radius_px)
         where = clutter_regions(sset, fig["clutter"], run.labels[16])
+        for area in args.min_area_px:
+            f = detection_figures(sset, test_dir, args.radius_px,
+                                  DetectionParams(min_area_px=area))
+            print(f"  textures {'on ' if textured else 'off'}, min_area_px {area}: clutter "
+                  f"{len(f['clutter'])} ({f['clutter_per_band']:.3f} per band), e_f "
+                  f"{f['e_f_px']:.4f} px ({f['matched']} glints), found "
+                  f"{100 * f['found']:.1f} %", flush=True)
         rows = {(r.source, r.method): r for r in run.rows if r.pulses_per_frame == 16}
         poly = rows[("rendered", "polynomial")]
         geo = rows[("rendered", "geometric")]
