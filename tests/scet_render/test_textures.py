@@ -317,3 +317,19 @@ def test_mnee_meets_the_texture_the_path_tracer_sees(mi, paper):
     # differ by the texture's gradient times that.
     assert np.abs(ours[hit] - seen[hit]).max() < 2e-3
     assert np.std(ours) > 0.02  # a texture, not a constant
+
+
+def test_scet_render_refuses_a_bad_appearance_in_one_line_before_any_work(tmp_path, capsys,
+                                                                          monkeypatch):
+    """``scet render`` with a scene whose [appearance] is out of range: exit 2, one line naming
+    the file and the key, nothing written (the table is checked before the renderer opens)."""
+    from scet_render.cli import main
+
+    scene = tmp_path / "bad.toml"
+    scene.write_text(_scene_text("sclera_vessels = -2"))
+    monkeypatch.chdir(tmp_path)
+    assert main(["render", str(scene), "--frames", "1", "--out", "d"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    assert "bad.toml" in err and "appearance.sclera_vessels" in err
+    assert not (tmp_path / "d").exists()
