@@ -15,8 +15,9 @@ What the eye looks like to the SCET camera (850 nm LEDs, a monochrome near-IR im
 * **Skin**: smooth mottling (``skin_contrast``) and pores (dark spots of 60-120 µm,
   ``skin_pores_per_mm2``) on a tile repeated over the face.
 * **Sclera**: faint vessels (``sclera_vessels`` of them, contrast ``sclera_vessel_contrast``)
-  running from the back of the eye toward the limbus and branching; blood absorbs far less at
-  850 nm than in the visible, so they are faint.
+  running from the back of the eye toward the limbus and branching; haemoglobin absorbs far
+  less at 850 nm than at its visible peaks (415-575 nm; S. Prahl's tabulation of haemoglobin's
+  molar extinction, omlc.org/spectra/hemoglobin), so they are faint.
 
 Means. Each texture's mean albedo is the configured one exactly where a render sees it:
 the iris's over every circle about its centre (each column of the polar texture), the
@@ -32,14 +33,15 @@ angle / pi). The skin meshes (skin shell, lids, face) carry texture coordinates 
 projection along the camera's general direction (z): u = x / tile, v = -y / tile, in the
 meshes' rest frame, so that the texture moves with the lids.
 
-Not modelled: the tear-film meniscus along the lid margin. It is a smooth dielectric strip
-some 0.3 mm high with a concave surface (radius ~0.3 mm); as geometry it would make its own
+Not modelled: the tear-film meniscus along the lid margin. It is a smooth dielectric strip a
+few tenths of a millimetre high with a concave surface of similar radius (the lower meniscus
+as reflective meniscometry measures it, Yokoi et al.); as geometry it would make its own
 specular highlights of every strobe light (a real effect: the meniscus glints that a glint
 detector must reject), but it needs a mesh that follows the lid margin as the lid moves and a
 refracting BSDF over the skin, which the lid meshes (rigid shells) do not have; a texture
 cannot fake a specular highlight that moves with the lights.
 
-All four textures are drawn from ``numpy.random.default_rng(seed)`` streams, one per texture:
+All three textures are drawn from ``numpy.random.default_rng(seed)`` streams, one per texture:
 the same seed and parameters give byte-identical arrays.
 """
 
