@@ -23,6 +23,10 @@ Geometry (SI units, world frame of the SCET paper's Fig. 3, eye in primary posit
   plane (the face) behind;
 * **lights**: one small spherical area emitter per light (``LightGroup.source_radius_m``); a
   point light would be invisible in a mirror. **Ambient**: a constant near-IR environment;
+* **appearance**: the iris, sclera and skin (shell, lids, face) reflect by seeded near-IR
+  textures of the scene's ``[appearance]`` table (:mod:`~scet_render.render.textures`; the
+  skin meshes carry planar texture coordinates), or by uniform albedos with
+  ``textured = false``;
 * **camera**: a perspective sensor with the Setup's intrinsics (:func:`sensor_dict` is the one
   place where OpenCV's pixel-centre convention meets Mitsuba's film).
 
