@@ -150,12 +150,19 @@ def _albedo_texture(name: str) -> dict:
 
 
 @functools.lru_cache(maxsize=32)
-def _texture(make, *args) -> np.ndarray:
-    """``make(*args)``, read-only, kept for the next scene with the same arguments (a texture
-    takes 0.2-0.6 s to draw; a run builds scenes of one Setup many times)."""
+def _drawn(make, *args) -> np.ndarray:
     out = make(*args)
     out.setflags(write=False)
     return out
+
+
+def _texture(make, *args) -> np.ndarray:
+    """A copy of ``make(*args)``, drawn once for all scenes with the same arguments (a texture
+    takes 0.2-0.6 s to draw; a run builds scenes of one Setup many times). A copy each time:
+    handing the same read-only array to a second scene made Dr.Jit 1.5 record that scene's
+    MNEE kernel once more (measured: tests/scet_render/test_mnee.py's frozen replay test after
+    the file's other tests; the cause inside Dr.Jit is not known)."""
+    return _drawn(make, *args).copy()
 
 
 def scene_appearance(setup: Setup, options: SceneOptions) -> tuple[Appearance, dict]:
