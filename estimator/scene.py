@@ -32,7 +32,7 @@ from .eyelids import read_eyelids
 from .geometry import Camera, RigidPose, look_at_rotation, rotation_from_vector, rotation_matrix
 from .lens_keys import read_lens
 from .scene_checks import check_geometry
-from .scene_wire import read_wire_mirror
+from .scene_wire import read_arc_frame, read_wire_mirror
 from .setup import DistanceSensor, LightGroup, LightRig, Screen, Sensor, Setup, Strobe
 
 FORMAT = "scet-scene"
@@ -238,13 +238,26 @@ def parse_scene(text: str, source: str = "<string>") -> Setup:
     lights = _read_lights(top, eye)
     lid_table = top.table("eyelids", required=False)
     eyelids = read_eyelids(lid_table, eye, screen) if lid_table is not None else None
+    appearance = _read_appearance(top)
     top.finish()
     setup = Setup(name=name, camera=camera, sensor=sensor, eye=eye, lights=lights, strobe=strobe,
                   screen=screen, distance_sensor=distance, description=description, source=source,
-                  eyelids=eyelids,
+                  eyelids=eyelids, appearance=appearance,
                   source_sha256=hashlib.sha256(text.encode("utf-8")).hexdigest())
     check_geometry(setup, top)
     return setup
+
+
+def _read_appearance(top: _Table) -> tuple | None:
+    """The ``[appearance]`` table as sorted (key, value) pairs, its values checked to be numbers
+    or booleans only; the renderer reads the keys (:mod:`scet_render.render.textures`)."""
+    t = top.table("appearance", required=False)
+    if t is None:
+        return None
+    for key, value in t.data.items():
+        if not isinstance(value, (bool, int, float)):
+            raise t.error(key, f"expected a number or a boolean, got {value!r}")
+    return tuple(sorted(t.data.items()))
 
 
 def _read_eye(t: _Table) -> Eye:
@@ -417,13 +430,7 @@ def _read_lights(top: _Table, eye: Eye) -> LightRig:
             diameter = emitter.wire_diameter_m if diameter is None else diameter
         elif kind == "arc":
             count = t.integer("count", minimum=1, maximum=10000)
-            radius = t.quantity("radius", "length", lo=1e-3, hi=1.0)
-            span = t.quantity("span", "angle", lo=0.0, hi=2 * math.pi)
-            first = t.quantity("first", "length", shape=3)
-            to_center = _unit(t, "center_direction", t.vector("center_direction"))
-            normal = _unit(t, "normal", t.vector("normal"))
-            if abs(to_center @ normal) > 1e-6:
-                raise t.error("normal", "expected a normal perpendicular to center_direction")
+            radius, span, first, to_center, normal = read_arc_frame(t)
             center = first + radius * to_center
             u = -to_center  # from the centre to the first light
             v = np.cross(normal, u)

@@ -29,10 +29,9 @@ def _unit(t, key, v):
     return v / n
 
 
-def read_wire_mirror(t):
-    """The :class:`~estimator.geometry.wire_model.WireMirror` of a ``kind = "wire_mirror"``
-    group (``t``: the scene reader's table of the group; the keys in the module docstring). Its
-    lights, the point-source model, are the turns' axes at mid-width."""
+def read_arc_frame(t):
+    """The keys an arc of lights and a wire mirror share: ``radius``, ``span``, ``first`` (SI
+    units) and the unit ``center_direction`` and ``normal``, perpendicular to each other."""
     radius = t.quantity("radius", "length", lo=1e-3, hi=1.0)
     span = t.quantity("span", "angle", lo=0.0, hi=2 * math.pi)
     first = t.quantity("first", "length", shape=3)
@@ -40,6 +39,14 @@ def read_wire_mirror(t):
     normal = _unit(t, "normal", t.vector("normal"))
     if abs(to_center @ normal) > 1e-6:
         raise t.error("normal", "expected a normal perpendicular to center_direction")
+    return radius, span, first, to_center, normal
+
+
+def read_wire_mirror(t):
+    """The :class:`~estimator.geometry.wire_model.WireMirror` of a ``kind = "wire_mirror"``
+    group (``t``: the scene reader's table of the group; the keys in the module docstring). Its
+    lights, the point-source model, are the turns' axes at mid-width."""
+    radius, span, first, to_center, normal = read_arc_frame(t)
     width = t.quantity("strip_width", "length", lo=1e-5, hi=0.1)
     thickness = t.quantity("strip_thickness", "length", lo=1e-5, hi=0.1)
     turns = t.integer("turns", minimum=1, maximum=10000)

@@ -166,6 +166,10 @@ class Setup:
     #: Lids that follow the eye (:class:`estimator.eyelids.Eyelids`, the scene's ``[eyelids]``
     #: table); None: the renderer's static lids.
     eyelids: Eyelids | None = None
+    #: The scene's ``[appearance]`` table as written (sorted (key, value) pairs: numbers,
+    #: booleans); None: no table. The estimator carries it unread: its keys belong to the
+    #: renderer (:func:`scet_render.render.textures.read_appearance`).
+    appearance: tuple | None = None
 
     @property
     def lights_world_m(self) -> np.ndarray:

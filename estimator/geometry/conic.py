@@ -75,6 +75,21 @@ def conic_sag(s, radius_m: float, asphericity: float) -> np.ndarray:
         return np.where(disc >= 0, s / (radius_m + np.sqrt(np.maximum(disc, 0.0))), np.nan)
 
 
+def _broadcast_inputs(camera_position_m, apex_m, cornea_axis, points, name: str):
+    """The conic solvers' inputs checked and broadcast: the camera (3,), the apex and axis
+    (batch..., 3), the points (batch..., n, 3) (one point (3,) is n = 1), and batch."""
+    O = as_points(camera_position_m, "camera_position_m").reshape(3)
+    A = as_points(apex_m, "apex_m")
+    ax = as_points(cornea_axis, "cornea_axis")
+    P = as_points(points, name)
+    if P.ndim == 1:
+        P = P[None, :]
+    batch = np.broadcast_shapes(A.shape[:-1], ax.shape[:-1], P.shape[:-2])
+    n = P.shape[-2]
+    return (O, np.broadcast_to(A, batch + (3,)), np.broadcast_to(ax, batch + (3,)),
+            np.broadcast_to(P, batch + (n, 3)), batch)
+
+
 def _frame(axis):
     """(..., 3) unit axes e1, e2 perpendicular to the unit optical axis and e3 = -axis (into
     the eye)."""
@@ -175,17 +190,8 @@ def conic_reflection_points(camera_position_m, apex_m, cornea_axis, cornea_radiu
     """
     R, Q = _check_conic(cornea_radius_m, asphericity)
     k = 1.0 + Q
-    O = as_points(camera_position_m, "camera_position_m").reshape(3)
-    A = as_points(apex_m, "apex_m")
-    ax = as_points(cornea_axis, "cornea_axis")
-    L = as_points(lights_world_m, "lights_world_m")
-    if L.ndim == 1:
-        L = L[None, :]
-    batch = np.broadcast_shapes(A.shape[:-1], ax.shape[:-1], L.shape[:-2])
-    A = np.broadcast_to(A, batch + (3,))
-    ax = np.broadcast_to(ax, batch + (3,))
-    n = L.shape[-2]
-    L = np.broadcast_to(L, batch + (n, 3))
+    O, A, ax, L, batch = _broadcast_inputs(camera_position_m, apex_m, cornea_axis,
+                                           lights_world_m, "lights_world_m")
     frame = _frame(ax)
     # Start: the sphere of the apex's curvature (centre R behind the apex).
     start, _, _ = reflection_points(O, A - R * ax / np.linalg.norm(ax, axis=-1, keepdims=True), R, L)

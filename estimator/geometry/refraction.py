@@ -31,8 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from .camera import Camera
-from .conic import _check_conic, _frame, _local
-from .rigid import as_points
+from .conic import _broadcast_inputs, _check_conic, _frame, _local
 
 #: Newton stops when the largest step is below this (units of R), as the conic's reflection
 #: solver: float64 rounding of the iterate.
@@ -155,17 +154,8 @@ def refraction_points(camera_position_m, apex_m, cornea_axis, cornea_radius_m: f
     if not (np.isfinite(n) and n >= 1.0):
         raise ValueError(f"refractive_index must be finite and >= 1, got {refractive_index}")
     k = 1.0 + Q
-    O = as_points(camera_position_m, "camera_position_m").reshape(3)
-    A = as_points(apex_m, "apex_m")
-    ax = as_points(cornea_axis, "cornea_axis")
-    X = as_points(points_inside_m, "points_inside_m")
-    if X.ndim == 1:
-        X = X[None, :]
-    batch = np.broadcast_shapes(A.shape[:-1], ax.shape[:-1], X.shape[:-2])
-    A = np.broadcast_to(A, batch + (3,))
-    ax = np.broadcast_to(ax, batch + (3,))
-    m = X.shape[-2]
-    X = np.broadcast_to(X, batch + (m, 3))
+    O, A, ax, X, batch = _broadcast_inputs(camera_position_m, apex_m, cornea_axis,
+                                           points_inside_m, "points_inside_m")
     fr = tuple(e[..., None, :] for e in _frame(ax))
     x = _local(X, A[..., None, :], fr, R)
     o = np.broadcast_to(_local(np.broadcast_to(O, batch + (3,)), A, _frame(ax), R)[..., None, :],

@@ -55,7 +55,7 @@ class EffectiveScene(NamedTuple):
         The scene TOML.
     overridden : list of str
         Setup fields whose keys were rewritten (``camera``, ``sensor``, ``strobe``, ``eye``,
-        ``eyelids``); empty where the text was already exact.
+        ``eyelids``, ``appearance``); empty where the text was already exact.
     differs : list of str
         Setup fields in which ``text`` still differs from the setup (empty: exact).
     """
@@ -71,7 +71,8 @@ class EffectiveScene(NamedTuple):
 _LATER_FIELDS = {("Eye", "cornea_asphericity"): 0.0, ("Setup", "eyelids"): None,
                  ("Eye", "pupil_diameter_m"): 4.0e-3,
                  ("Camera", "distortion"): (), ("Camera", "f_number"): None,
-                 ("Camera", "focus_distance_m"): None, ("Camera", "pixel_pitch_m"): None}
+                 ("Camera", "focus_distance_m"): None, ("Camera", "pixel_pitch_m"): None,
+                 ("Setup", "appearance"): None, ("LightGroup", "emitter"): None}
 
 
 def _at_older_value(obj, name: str) -> bool:
@@ -229,7 +230,7 @@ def effective_scene_text(setup: Setup, text: str) -> EffectiveScene:
         return EffectiveScene(text, [], [])
     lines = text.splitlines()
     cam = setup.camera
-    rewritable = [d for d in diffs if d in ("camera", "sensor", "strobe", "eye")
+    rewritable = [d for d in diffs if d in ("camera", "sensor", "strobe", "eye", "appearance")
                   or (d == "eyelids" and setup.eyelids is None)]
     if "camera" in rewritable:
         c0 = base.camera
@@ -272,6 +273,11 @@ def effective_scene_text(setup: Setup, text: str) -> EffectiveScene:
             lines = _rewrite(lines, table, values, replaced)
     if "eyelids" in rewritable:
         lines = _drop_table(lines, "eyelids")
+    if "appearance" in rewritable:  # the renderer's table, set in code: written whole
+        lines = _drop_table(lines, "appearance")
+        if setup.appearance is not None:
+            lines += ["", "[appearance]  # overridden"] + [
+                f"{k} = {_toml_value(v)}" for k, v in setup.appearance]
     out = "\n".join(lines) + "\n"
     try:
         left = setup_differences(parse_scene(out, source="<effective scene>"), setup)

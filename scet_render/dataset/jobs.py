@@ -34,6 +34,7 @@ from estimator.setup import Setup
 
 from ..motion import PupilModel
 from ..render import SceneOptions, SensorModel
+from ..render.textures import read_appearance
 from .format import (
     FRAMES_DIR,
     LABELS_NAME,
@@ -162,6 +163,7 @@ def prepare_dataset(setup: Setup, out_dir, *, frames: int, spp: int = 16,
         raise ValueError(f"masks must be True or False, got {masks!r}")
     if pupil is not None and not isinstance(pupil, PupilModel):
         raise ValueError(f"pupil must be a PupilModel or None, got {type(pupil).__name__}")
+    read_appearance(setup)  # the scene's [appearance] table (SceneError), before any work
     if eyelid_openness is None and setup.eyelids is not None:
         # No lids rendered: none in the labels either (nothing hides a glint).
         setup = dataclasses.replace(setup, eyelids=None)

@@ -422,6 +422,8 @@ def _renderer_settings(renderer) -> dict:
         "blur_step_px": renderer.blur_step_px,
         "max_ambient_instants": renderer.max_ambient_instants,
         "scene_options": {name: getattr(options, name) for name in options.__slots__},
+        # The [appearance] table rendered, every key resolved (defaults, albedos).
+        "appearance": dict(renderer.eye_scene.appearance_table),
     }
 
 

@@ -117,9 +117,10 @@ def export_mitsuba(setup: Setup, out_dir: str | Path, options: SceneOptions | No
     for name, mesh in desc.meshes.items():
         mesh.export(out / "meshes" / f"{name}.ply", encoding="binary", vertex_normal=True)
     for name, data in desc.textures.items():
-        # 8-bit is exact for a 0/1 mask; "raw" keeps Mitsuba from linearising it as sRGB.
+        # 16-bit: exact for a 0/1 mask, 1.5e-5 steps for an albedo texture; "raw" keeps
+        # Mitsuba from linearising it as sRGB.
         if not cv2.imwrite(str(out / "textures" / f"{name}.png"),
-                           np.round(np.clip(data, 0, 1) * 255).astype(np.uint8)):
+                           np.round(np.clip(data, 0, 1) * 65535).astype(np.uint16)):
             raise OSError(f"cannot write {out / 'textures' / f'{name}.png'}")
     root = ET.Element("scene", version="3.0.0")
     for key, value in desc.objects.items():

@@ -35,7 +35,8 @@ out: against converged path tracing with 1.5 mm lights, MNEE reads the iris 1.3-
 
 Everything moving is an opaque Dr.Jit input (:func:`pose_state`), so the frozen kernels
 (:mod:`.mnee_kernels`) replay for every eye pose without recompiling. The tests' independent
-references are in :mod:`.mnee_reference`.
+references are in :mod:`.mnee_reference`. A textured iris's albedo at x is its BSDF's texture
+there (:func:`~scet_render.render.textures.iris_albedo`).
 """
 
 from __future__ import annotations
@@ -45,6 +46,7 @@ import math
 import numpy as np
 
 from .layout import IRIS_OVERLAP, PUPIL_OFFSET_M, SCENE_UNITS_PER_M
+from .textures import iris_albedo, iris_lookup
 
 #: The solve (connect's notes): extrapolated reverse-Snell steps and Newton iterations in
 #: float32, then float64. Of 400 random iris point / paper_sim light pairs (test_mnee.py,
@@ -87,16 +89,19 @@ def pose_state(setup, layout, cornea_to_scene, yaw_rad, pitch_rad, pupil_radius_
     dict of str -> ndarray
         ``minv`` (3, 3) and ``tinv`` (3,): scene -> unit-sphere space of the cornea;
         ``center`` (3,) rotation centre, ``gaze`` (3,) unit gaze; ``limbus`` the limbus plane's
-        distance along the gaze from the centre; ``sclera``, ``pupil`` the two radii.
+        distance along the gaze from the centre; ``sclera``, ``pupil`` the two radii; ``iris_x``,
+        ``iris_y`` (3,) the iris disk's local axes.
     """
     from estimator.eye import eye_rotation_matrix
 
     M = np.asarray(cornea_to_scene, dtype=np.float64)
     minv = np.linalg.inv(M[:3, :3])
-    gaze = eye_rotation_matrix(yaw_rad, pitch_rad) @ np.array([0.0, 0.0, -1.0])
+    face = eye_rotation_matrix(yaw_rad, pitch_rad) * np.array([1.0, -1.0, -1.0])  # R @ _GAZE_FRAME
+    gaze = face[:, 2]
     return {
         "minv": minv, "tinv": -minv @ M[:3, 3],
         "center": setup.eye.rotation_center_m * SCENE_UNITS_PER_M, "gaze": gaze,
+        "iris_x": face[:, 0], "iris_y": face[:, 1],
         "limbus": np.float64(layout.limbus_plane_m * SCENE_UNITS_PER_M),
         "sclera": np.float64(layout.sclera_radius_m * SCENE_UNITS_PER_M),
         "pupil": np.float64(SCENE_UNITS_PER_M * (0.5 * setup.eye.pupil_diameter_m
@@ -113,19 +118,17 @@ def to_drjit(state: dict, mi) -> dict:
     def vec(v):
         return V64(*(dr.opaque(F64, float(c)) for c in v))
 
-    return {"m0": vec(state["minv"][0]), "m1": vec(state["minv"][1]),
-            "m2": vec(state["minv"][2]), "t": vec(state["tinv"]),
-            "center": vec(state["center"]), "gaze": vec(state["gaze"]),
-            "limbus": dr.opaque(F64, float(state["limbus"])),
-            "sclera": dr.opaque(F64, float(state["sclera"])),
-            "pupil": dr.opaque(F64, float(state["pupil"]))}
+    out = {"m0": vec(state["minv"][0]), "m1": vec(state["minv"][1]),
+           "m2": vec(state["minv"][2]), "t": vec(state["tinv"])}
+    out.update({k: vec(state[k]) for k in ("center", "gaze", "iris_x", "iris_y")})
+    return out | {k: dr.opaque(F64, float(state[k])) for k in ("limbus", "sclera", "pupil")}
 
 
-def light_table(setup, options, layout, mi) -> dict:
+def light_table(setup, options, layout, mi, iris=None) -> dict:
     """The scene's constants for :func:`mnee_radiance`: the strobe lights as float64 Dr.Jit
-    arrays (``center`` (K) points, ``radius`` (K), in cm, ``count`` K), and the iris and pupil
-    disks (``iris_cm``, ``pupil_offset_cm`` in front of the iris, albedos; the pupil's radius:
-    :func:`pose_state`)."""
+    arrays (``center`` (K) points, ``radius`` (K), in cm, ``count`` K), the iris and pupil disks
+    (``iris_cm``, ``pupil_offset_cm`` in front of the iris, albedos; ``iris``: (mean albedo,
+    texture or None); the pupil's radius: :func:`pose_state`)."""
     import drjit as dr
 
     F64, V64 = dr.float64_array_t(mi.Float), dr.float64_array_t(mi.Vector3f)
@@ -136,7 +139,8 @@ def light_table(setup, options, layout, mi) -> dict:
             "count": int(p.shape[0]),
             "iris_cm": float(layout.limbus_radius_m * IRIS_OVERLAP * SCENE_UNITS_PER_M),
             "pupil_offset_cm": float(PUPIL_OFFSET_M * SCENE_UNITS_PER_M),
-            "iris_albedo": float(options.iris_albedo),
+            "iris_albedo": float(iris[0]) if iris else float(options.iris_albedo),
+            **iris_lookup(mi, iris[1] if iris else None),
             "pupil_albedo": float(options.pupil_albedo)}
 
 
@@ -457,7 +461,8 @@ def mnee_back(mi, scene, lanes: dict, state, lights, eta: float, radiance: float
     shadow = mi.Ray3f(mi.Point3f(sol["y"] + sol["n"] * 1e-5), mi.Vector3f(sol["d"]))
     shadow.maxt = mi.Float(dr.norm(z - sol["y"]) * (1.0 - 1e-4))
     active &= ~scene.ray_test(shadow, active)
-    albedo = dr.select(lanes["on_pupil"], lights["pupil_albedo"], lights["iris_albedo"])
+    albedo = dr.select(lanes["on_pupil"], lights["pupil_albedo"],
+                       iris_albedo(mi, state, lights, x))
     f_cos = F64(albedo) * (1.0 / math.pi) * cos_x
     t_y = 1.0 - _fresnel(sol["cos_out"], eta)
     geometry, area = sol["domega_dperp"] * facing, 4.0 * math.pi * r * r

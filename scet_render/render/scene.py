@@ -23,6 +23,10 @@ Geometry (SI units, world frame of the SCET paper's Fig. 3, eye in primary posit
   plane (the face) behind;
 * **lights**: one small spherical area emitter per light (``LightGroup.source_radius_m``); a
   point light would be invisible in a mirror. **Ambient**: a constant near-IR environment;
+* **appearance**: the iris, sclera and skin (shell, lids, face) reflect by seeded near-IR
+  textures of the scene's ``[appearance]`` table (:mod:`~scet_render.render.textures`; the
+  skin meshes carry planar texture coordinates), or by uniform albedos with
+  ``textured = false``;
 * **camera**: a perspective sensor with the Setup's intrinsics (:func:`sensor_dict` is the one
   place where OpenCV's pixel-centre convention meets Mitsuba's film).
 
@@ -58,6 +62,7 @@ from .cornea_bsdf import CORNEA_BSDF_TYPE, REFLECT_PROBABILITY, register_cornea_
 from .layout import (
     FACE_BEHIND_CENTER_M,
     FILM_TO_OPENCV_PX,
+    IRIS_OVERLAP,
     MOVING_KEYS,
     SCENE_UNITS_PER_M,
     EyeLayout,
@@ -67,9 +72,6 @@ from .layout import (
 )
 from .lids import LASH_ALBEDO, LID_MOVING_KEYS, lash_mesh, lid_transforms, moving_lid_meshes
 from .meshes import (
-    _GAZE_FRAME,
-    _affine,
-    _to_scene_units,
     _trimesh,
     cornea_mesh,
     cornea_opacity,
@@ -80,6 +82,15 @@ from .meshes import (
 )
 from .mnee import light_table, mnee_radiance, pose_state, to_drjit
 from .mnee_kernels import mnee_integrator
+from .textures import (
+    albedo_bitmap,
+    cached_texture,
+    iris_texture,
+    scene_appearance,
+    sclera_texture,
+    skin_texture,
+    skin_uv,
+)
 from .wire_mirror import wire_mirror_objects
 
 log = logging.getLogger(__name__)
@@ -128,9 +139,30 @@ def _rgb(values) -> dict:
     return {"type": "rgb", "value": [float(v) for v in values]}
 
 
-def _diffuse(albedo: float, twosided: bool = False) -> dict:
-    bsdf = {"type": "diffuse", "reflectance": _rgb([albedo] * 3)}
+def _diffuse(albedo, twosided: bool = False) -> dict:
+    """A diffuse BSDF of a uniform albedo, or of a texture's (a ``bitmap`` entry)."""
+    reflectance = albedo if isinstance(albedo, dict) else _rgb([albedo] * 3)
+    bsdf = {"type": "diffuse", "reflectance": reflectance}
     return {"type": "twosided", "bsdf": bsdf} if twosided else bsdf
+
+
+def _with_uv(mesh, setup: Setup):
+    """``mesh`` with the skin's planar texture coordinates (:func:`textures.skin_uv`)."""
+    import trimesh
+
+    mesh.visual = trimesh.visual.TextureVisuals(
+        uv=skin_uv(mesh.vertices, setup.eye.rotation_center_m))
+    return mesh
+
+
+def _face_mesh(setup: Setup, half_m: float = 0.1):
+    """The face plane: a square of half-side ``half_m`` facing -z, behind the skin shell's rim
+    (:data:`FACE_BEHIND_CENTER_M`), with the skin's texture coordinates."""
+    c = setup.eye.rotation_center_m + np.array([0.0, 0.0, FACE_BEHIND_CENTER_M])
+    v = c + half_m * np.array([[-1.0, -1.0, 0.0], [1.0, -1.0, 0.0], [1.0, 1.0, 0.0],
+                                [-1.0, 1.0, 0.0]])
+    n = np.tile([0.0, 0.0, -1.0], (4, 1))
+    return _with_uv(_trimesh(v, np.array([[0, 1, 2], [0, 2, 3]]), n), setup)
 
 
 def _cornea_bsdf(setup: Setup, options: SceneOptions) -> dict:
@@ -177,31 +209,38 @@ def describe_scene(setup: Setup, options: SceneOptions = SceneOptions(), *, spp:
     split = options.channels == "split"
     T = eye_part_transforms(setup, layout, yaw_rad, pitch_rad, pupil_radius(setup, options))
     cornea_bsdf = _cornea_bsdf(setup, options)
+    app, table = scene_appearance(setup, options)
+    textures = {"sclera_opacity": sclera_opacity(layout)}
+    albedo = {part: table[f"{part}_albedo"] for part in ("iris", "sclera", "skin")}
+    if app.textured:
+        r_iris = layout.limbus_radius_m * IRIS_OVERLAP
+        textures["iris_albedo"] = cached_texture(iris_texture, app, albedo["iris"], r_iris)
+        textures["sclera_albedo"] = cached_texture(sclera_texture, app, albedo["sclera"],
+                                             layout.sclera_radius_m, layout.cap_angle_rad)
+        textures["skin_albedo"] = cached_texture(skin_texture, app, albedo["skin"])
+        albedo = {part: albedo_bitmap(f"{part}_albedo") for part in albedo}
     objects = {
         "type": "scene",
         "integrator": {"type": "path", "max_depth": int(options.max_depth)},
         "camera": sensor_dict(setup.camera, spp),
         "sclera": {"type": "sphere", "to_world": T["sclera"], "bsdf": {
-            "type": "mask", "bsdf": _diffuse(options.sclera_albedo),
+            "type": "mask", "bsdf": _diffuse(albedo["sclera"]),
             "opacity": {"type": "bitmap", "filename": "textures/sclera_opacity.png", "raw": True,
                         "filter_type": "nearest"}}},
-        "iris": {"type": "disk", "to_world": T["iris"], "bsdf": _diffuse(options.iris_albedo)},
+        "iris": {"type": "disk", "to_world": T["iris"], "bsdf": _diffuse(albedo["iris"])},
         "pupil": {"type": "disk", "to_world": T["pupil"], "bsdf": _diffuse(options.pupil_albedo)},
     }
     # The face beyond the skin shell: a plane just behind the shell's rim, facing the camera.
-    face_at = setup.eye.rotation_center_m + np.array([0.0, 0.0, FACE_BEHIND_CENTER_M])
-    objects["face"] = {"type": "disk",
-                       "to_world": _to_scene_units(_affine(_GAZE_FRAME, face_at, (0.1, 0.1, 1.0))),
-                       "bsdf": _diffuse(options.skin_albedo, twosided=True)}
-    meshes = {"skin": skin_mesh(setup, layout)}
+    meshes = {"face": _face_mesh(setup), "skin": _with_uv(skin_mesh(setup, layout), setup)}
     lids = setup.eyelids if options.eyelid_openness is not None else None
     if lids is None and options.eyelid_openness is not None:
-        meshes["lid_upper"], meshes["lid_lower"] = eyelid_meshes(setup, layout)
+        meshes["lid_upper"], meshes["lid_lower"] = (
+            _with_uv(m, setup) for m in eyelid_meshes(setup, layout))
     for name in meshes:
         objects[name] = {"type": "ply", "filename": f"meshes/{name}.ply", "face_normals": False,
-                         "bsdf": _diffuse(options.skin_albedo, twosided=True)}
+                         "bsdf": _diffuse(albedo["skin"], twosided=True)}
     if lids is not None:
-        _moving_lids(setup, layout, lids, options, pitch_rad, objects, meshes)
+        _moving_lids(setup, layout, lids, albedo["skin"], pitch_rad, objects, meshes)
     if options.cornea_geometry == "mesh":
         mesh = cornea_mesh(setup, options.cornea_edge_m)
         R = eye_rotation_matrix(yaw_rad, pitch_rad)
@@ -244,17 +283,17 @@ def describe_scene(setup: Setup, options: SceneOptions = SceneOptions(), *, spp:
                               "radiance": _rgb((0, A, 0) if split else (A, A, A))}
     for mesh in meshes.values():
         mesh.apply_scale(SCENE_UNITS_PER_M)
-    textures = {"sclera_opacity": sclera_opacity(layout)}
     if "cornea_surface" in objects:
         textures["cornea_opacity"] = cornea_opacity(setup)
     return SceneDescription(objects, meshes, textures, layout)
 
 
-def _moving_lids(setup, layout, lids, options, pitch_rad, objects, meshes) -> None:
+def _moving_lids(setup, layout, lids, skin_albedo, pitch_rad, objects, meshes) -> None:
     """Add the lids that follow the eye (:mod:`~scet_render.render.lids`): each lid's meshes in a
-    shapegroup, placed by an instance whose ``to_world`` moves them (lashes with the upper)."""
-    skin = _diffuse(options.skin_albedo, twosided=True)
-    upper, lower = moving_lid_meshes(setup, layout, lids)
+    shapegroup, placed by an instance whose ``to_world`` moves them (lashes with the upper).
+    The lids' skin texture is mapped at their rest pose, so it moves with them."""
+    skin = _diffuse(skin_albedo, twosided=True)
+    upper, lower = (_with_uv(m, setup) for m in moving_lid_meshes(setup, layout, lids))
     parts = {"lid_upper": {"lid_upper_surface": (upper, skin)},
              "lid_lower": {"lid_lower_surface": (lower, skin)}}
     lashes = lash_mesh(setup, layout, lids)
@@ -275,8 +314,14 @@ def _moving_lids(setup, layout, lids, options, pitch_rad, objects, meshes) -> No
 # --------------------------------------------------------------------------- loading
 
 
-def _to_mitsuba(value, mi, desc: SceneDescription, name: str = ""):
-    """Plain description -> ``mi.load_dict`` input (transforms, in-memory meshes, textures)."""
+def _to_mitsuba(value, mi, desc: SceneDescription, name: str = "", bsdfs: dict | None = None):
+    """Plain description -> ``mi.load_dict`` input (transforms, in-memory meshes, textures).
+
+    Meshes with equal BSDF descriptions share one loaded BSDF (``bsdfs``, filled as it goes):
+    the skin's texture then exists once. Two copies of one texture among a frozen kernel's
+    inputs made Dr.Jit 1.5 record the MNEE kernel anew at every call (measured: 4 recordings
+    in 4 poses against 2-3 with one copy)."""
+    bsdfs = {} if bsdfs is None else bsdfs
     if isinstance(value, np.ndarray) and value.shape == (4, 4):
         return mi.ScalarTransform4f(value)
     if not isinstance(value, dict):
@@ -287,21 +332,27 @@ def _to_mitsuba(value, mi, desc: SceneDescription, name: str = ""):
         rest = {k: v for k, v in value.items() if k != "filename"}
         return {**rest, "data": mi.TensorXf(np.ascontiguousarray(data[..., None]))}
     if kind == "ply":
-        return mitsuba_mesh(mi, name, desc.meshes[name],
-                            mi.load_dict(_to_mitsuba(value["bsdf"], mi, desc)))
-    return {k: _to_mitsuba(v, mi, desc, k) for k, v in value.items()}
+        key = repr(value["bsdf"])
+        if key not in bsdfs:
+            bsdfs[key] = mi.load_dict(_to_mitsuba(value["bsdf"], mi, desc, bsdfs=bsdfs))
+        return mitsuba_mesh(mi, name, desc.meshes[name], bsdfs[key])
+    return {k: _to_mitsuba(v, mi, desc, k, bsdfs) for k, v in value.items()}
 
 
 def mitsuba_mesh(mi, name: str, m, bsdf):
     """A ``mi.Mesh`` with a trimesh mesh's vertices, faces and vertex normals, and a BSDF."""
     props = mi.Properties()
     props["bsdf"] = bsdf
-    mesh = mi.Mesh(name, len(m.vertices), len(m.faces), props=props, has_vertex_normals=True)
+    uv = getattr(m.visual, "uv", None)
+    mesh = mi.Mesh(name, len(m.vertices), len(m.faces), props=props, has_vertex_normals=True,
+                   has_vertex_texcoords=uv is not None)
     p = mi.traverse(mesh)
+    buffers = [("vertex_positions", m.vertices, np.float32), ("faces", m.faces, np.uint32),
+               ("vertex_normals", m.vertex_normals, np.float32)]
+    if uv is not None:
+        buffers.append(("vertex_texcoords", uv, np.float32))
     # Buffer types differ between variants (Float vs ArrayXf): reuse the mesh's own.
-    for key, data, dtype in (("vertex_positions", m.vertices, np.float32),
-                             ("faces", m.faces, np.uint32),
-                             ("vertex_normals", m.vertex_normals, np.float32)):
+    for key, data, dtype in buffers:
         p[key] = type(p[key])(np.asarray(data, dtype).ravel())
     p.update()
     return mesh
@@ -355,8 +406,10 @@ class EyeScene:
             log.warning("%s, %s cornea: no strobe light through the cornea (MNEE needs an "
                         "LLVM or CUDA variant and the analytic cornea)", mi.variant(),
                         options.cornea_geometry)
-        self.mnee_lights = (light_table(setup, options, self.layout, mi) if self.mnee_enabled
-                            else None)
+        self.appearance, self.appearance_table = scene_appearance(setup, options)
+        iris = (self.appearance_table["iris_albedo"], desc.textures.get("iris_albedo"))
+        self.mnee_lights = (light_table(setup, options, self.layout, mi, iris)
+                            if self.mnee_enabled else None)
         self.mnee_state = None
         self.render_integrator = self.scene.integrator()
         if self.mnee_enabled:

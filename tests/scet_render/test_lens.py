@@ -204,7 +204,7 @@ def test_lens_kernels_replay_with_mnee(mi, half):
     n = rows[1] - rows[0]
     assert lit._kernels[4, n].n_recordings <= 2  # recorded once (+ one re-record), then replayed
     assert lit._mnee.fronts[4, n].n_recordings <= 2  # MNEE's front kernel, as the path's
-    assert lit._mnee.back.n_recordings <= 2
+    assert lit._mnee.back.n_recordings <= 3  # as test_mnee's replay test: not one per pose
     dark = BandedRenderer(setup, spp=4, seed=5, options=dataclasses.replace(
         lit.options, strobe_through_cornea="none"))
     with_mnee = lit.render_rows(-0.12, 0.04, *rows, seed=9)[0]

@@ -345,9 +345,12 @@ def test_poses_replay_the_frozen_kernel(mi, paper):
         rend.render_rows(POSE[0] + 0.02 * k, POSE[1], seed=k)
     # Recorded at the first call, and at most once more (Dr.Jit's first replay may record
     # again, turning inputs that changed into opaque ones); then only replays. The back
-    # kernel sees a different number of iris lanes at each pose: still one recording.
+    # kernel sees a different number of iris lanes at each pose; it records once more where
+    # the textured iris's lookup first meets a new lane count (3 over these 3 poses; 5 over
+    # 14 poses untextured, each a re-trace of 0.1-0.2 s, not a recompile: Dr.Jit's kernel
+    # cache holds the same kernel). A recording per pose would be 4 here.
     assert rend._mnee.fronts[16, setup.camera.height_px].n_recordings <= 2
-    assert rend._mnee.back.n_recordings <= 2
+    assert rend._mnee.back.n_recordings <= 3
     iris, _, _ = _iris_pupil(rend)
     # MNEE's own light, apart from the path tracer's at the same seed (as above).
     plain = _renderer(setup, "none", spp=16)

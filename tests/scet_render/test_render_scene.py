@@ -235,11 +235,12 @@ def test_export_renders_with_mitsubas_own_loader(mi, setup, tmp_path):
     path = export_mitsuba(setup, tmp_path / "scene", yaw_rad=0.1, pitch_rad=-0.05, spp=4)
     assert path.name == "scene.xml"
     assert sorted(p.name for p in (path.parent / "meshes").iterdir()) == [
-        "lid_lower.ply", "lid_upper.ply", "skin.ply"]
+        "face.ply", "lid_lower.ply", "lid_upper.ply", "skin.ply"]
     scene = mi.load_file(str(path))
-    # (Mitsuba merges the skin and lid meshes, which share one BSDF, into one unnamed mesh.)
+    # (Mitsuba merges the skin, lid and face meshes, which share one BSDF, into one unnamed
+    # mesh.)
     ids = {s.id() for s in scene.shapes()}
-    assert {"cornea", "sclera", "iris", "pupil", "face", "light_039"} <= ids
+    assert {"cornea", "sclera", "iris", "pupil", "light_039"} <= ids
     # The exported camera is the Setup's camera.
     sensor = scene.sensors()[0]
     film = mi.Point2f(float(100.5 / 640), float(50.5 / 480))
