@@ -78,7 +78,10 @@ def _facing(setup, yaw, pitch, points):
 def test_sphere_scene_is_unchanged_and_conic_is_an_instance(conic):
     sphere = describe_scene(load_scene("paper_sim"))
     assert sphere.objects["cornea"]["type"] == "sphere"
-    assert "cornea_surface" not in sphere.objects and set(sphere.textures) == {"sclera_opacity"}
+    # The sphere's only cornea-related texture is the sclera's cut-out; the rest are the
+    # near-IR appearance's albedos (scet_render.render.textures), the same for both corneas.
+    assert "cornea_surface" not in sphere.objects
+    assert set(sphere.textures) == {"sclera_opacity", "iris_albedo", "sclera_albedo", "skin_albedo"}
     desc = describe_scene(conic)
     assert desc.objects["cornea"]["type"] == "instance"
     assert desc.objects["cornea_surface"]["surface"]["bsdf"]["type"] == "mask"
