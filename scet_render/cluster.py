@@ -34,6 +34,8 @@ log = logging.getLogger(__name__)
 NAMESPACE = "scet"
 #: Where the local Ray's node advertises itself: the loopback interface.
 LOCAL_NODE_IP = "127.0.0.1"
+#: Ray's restarts of a crashed actor, and retries of a task whose actor died.
+MAX_RESTARTS, MAX_TASK_RETRIES = 3, 3
 
 
 def import_ray():
@@ -84,6 +86,33 @@ def ray_session(workers: int | None = None, address: str | None = None,
         yield ray
     finally:
         ray.shutdown()
+
+
+def actor_class(ray, cls, cpus_per_worker: int = 1):
+    """``cls`` as a Ray actor class of ``cpus_per_worker`` CPUs that Ray restarts after a crash
+    (:data:`MAX_RESTARTS`), its tasks retried (:data:`MAX_TASK_RETRIES`)."""
+    return ray.remote(num_cpus=cpus_per_worker, max_restarts=MAX_RESTARTS,
+                      max_task_retries=MAX_TASK_RETRIES)(cls)
+
+
+def worker_count(ray, workers: int | None, items: int, cpus_per_worker: int = 1) -> int:
+    """Actors to start: ``workers``, else the cluster's CPUs // ``cpus_per_worker``; never more
+    than ``items`` and at least 1."""
+    n = workers or max(1, int(ray.cluster_resources().get("CPU", 1)) // cpus_per_worker)
+    return max(1, min(n, items))
+
+
+def render_on_actors(ray, actors, items) -> Iterator:
+    """``actor.render(item)`` for every item, handed to the actors as they free up; yields the
+    results in completion order. The actors are killed at the end (after an error too), so a
+    run on a shared cluster leaves none behind."""
+    from ray.util import ActorPool
+
+    try:
+        yield from ActorPool(actors).map_unordered(lambda a, item: a.render.remote(item), items)
+    finally:
+        for a in actors:
+            ray.kill(a, no_restart=True)
 
 
 def _call(fn, args):

@@ -123,20 +123,14 @@ def render_calibration(setup: Setup, out_dir, *, spp: int, cornea: str, seed: in
 
 def _render_calibration_ray(cal, traj, out, todo, kwargs, workers, address, progress) -> None:
     """The frames ``todo`` rendered by Ray actors, each a warm :class:`CalibrationFrames`."""
-    from ..cluster import ray_session
+    from ..cluster import actor_class, ray_session, render_on_actors, worker_count
 
     with ray_session(workers, address) as ray:
-        n = workers or max(1, int(ray.cluster_resources().get("CPU", 1)))
-        n = min(n, len(todo))
-        actor = ray.remote(num_cpus=1, max_restarts=3, max_task_retries=3)(CalibrationFrames)
+        actor = actor_class(ray, CalibrationFrames)
         first = actor.remote(cal, traj, out, threads=1, **kwargs)
         width = ray.get(first.describe.remote())
         actors = [first] + [actor.remote(cal, traj, out, vector_width=width, threads=1, **kwargs)
-                            for _ in range(1, n)]
-        from ray.util import ActorPool
-
-        for k, _ in enumerate(ActorPool(actors).map_unordered(lambda a, f: a.render.remote(f), todo)):
+                            for _ in range(1, worker_count(ray, workers, len(todo)))]
+        for k, _ in enumerate(render_on_actors(ray, actors, todo)):
             if progress is not None:
                 progress(k + 1)
-        for a in actors:
-            ray.kill(a, no_restart=True)

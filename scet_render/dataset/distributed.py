@@ -21,14 +21,20 @@ from __future__ import annotations
 
 from typing import Callable
 
-from ..cluster import NAMESPACE, check_workers, ray_session
+from ..cluster import (
+    MAX_RESTARTS,
+    MAX_TASK_RETRIES,
+    NAMESPACE,
+    actor_class,
+    check_workers,
+    ray_session,
+    render_on_actors,
+    worker_count,
+)
 from .format import DatasetMismatchError, RenderSummary
 from .jobs import commit_manifest, finalize_dataset, prepare_dataset
 
-__all__ = ["FrameRenderer", "NAMESPACE", "render_dataset_ray"]
-
-#: Ray's restarts of a crashed actor, and retries of a task whose actor died.
-MAX_RESTARTS, MAX_TASK_RETRIES = 3, 3
+__all__ = ["FrameRenderer", "MAX_RESTARTS", "MAX_TASK_RETRIES", "NAMESPACE", "render_dataset_ray"]
 
 
 class FrameRenderer:
@@ -88,10 +94,8 @@ def render_dataset_ray(setup, out_dir, *, frames: int, workers: int | None = Non
         return finalize_dataset(plan, traj, {})
     check_workers(workers, cpus_per_worker)
     with ray_session(workers, address, cpus_per_worker) as ray:
-        n = workers or max(1, int(ray.cluster_resources().get("CPU", 1)) // cpus_per_worker)
-        n = min(n, len(plan.todo)) or 1
-        actor = ray.remote(num_cpus=cpus_per_worker, max_restarts=MAX_RESTARTS,
-                           max_task_retries=MAX_TASK_RETRIES)(FrameRenderer)
+        n = worker_count(ray, workers, len(plan.todo), cpus_per_worker)
+        actor = actor_class(ray, FrameRenderer, cpus_per_worker)
         width = plan.recorded_vector_width
         first = actor.options(name="scet-render-0", get_if_exists=False).remote(
             plan, width, cpus_per_worker)
@@ -106,14 +110,9 @@ def render_dataset_ray(setup, out_dir, *, frames: int, workers: int | None = Non
                     f"{plan.out}: workers would render different bytes (variant {v} against "
                     f"{variant_}, settings {s} against {settings}); use workers of one kind")
         commit_manifest(plan, variant_, settings, host)
-        from ray.util import ActorPool
-
         labels = {}
-        pool = ActorPool(actors)
-        for frame, frame_labels in pool.map_unordered(lambda a, f: a.render.remote(f), plan.todo):
+        for frame, frame_labels in render_on_actors(ray, actors, plan.todo):
             labels[frame] = frame_labels
             if progress is not None:
                 progress(len(plan.done) + len(labels), plan.frames)
-        for a in actors:
-            ray.kill(a, no_restart=True)
         return finalize_dataset(plan, traj, labels)
