@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from .cli_progress import print_table, progress_bar
-from .runner import MAX_RENDER_FRAMES, MAX_SEED, MAX_SPP, integer
+from .runner import MAX_RENDER_FRAMES, MAX_SEED, MAX_SPP, finite, integer
 
 
 def _grid_pattern(text: str) -> tuple[int, int]:
@@ -73,7 +73,7 @@ def cmd_render(args) -> int:
     bar, update = progress_bar(args.frames, "frame", f"render {setup.name}")
     kwargs = dict(frames=args.frames, spp=args.spp, trajectory=args.trajectory, seed=args.seed,
                   variant=args.variant, cornea=args.cornea, progress=update,
-                  masks=not args.no_masks)
+                  masks=not args.no_masks, pupil=_pupil_model(args))
     try:
         if args.workers is not None or args.ray_address is not None:
             from .dataset import render_dataset_ray
@@ -95,6 +95,19 @@ def cmd_render(args) -> int:
         replay_dataset(summary.path, summary.path, scene=args.scene, raw_format=args.raw)
         print(f"raw frames ({args.raw}, Bayer mosaic) and capture.json written to {summary.path}")
     return 0
+
+
+def _pupil_model(args):
+    """The pupil dynamics ``--pupil`` / ``--light-steps-per-min`` ask for (None: the scene's
+    fixed size, as before)."""
+    if args.pupil == "fixed":
+        if args.light_steps_per_min is not None:
+            raise ValueError("--light-steps-per-min needs --pupil dynamic")
+        return None
+    from .motion import PupilModel
+
+    rate = 0.0 if args.light_steps_per_min is None else args.light_steps_per_min
+    return PupilModel(light_steps_per_min=rate)
 
 
 def cmd_dataset(args) -> int:
@@ -181,6 +194,14 @@ def add_render_parser(sub, scene_help: str) -> None:
                                      "else scalar_rgb)")
     p.add_argument("--cornea", choices=("dielectric", "plain_dielectric", "conductor"),
                    default="dielectric")
+    p.add_argument("--pupil", choices=("fixed", "dynamic"), default="fixed",
+                   help="the pupil's size over time: the scene's eye.pupil_diameter_mm throughout "
+                        "(fixed, the default) or seeded hippus and light reflexes around it "
+                        "(dynamic: scet_render.motion.pupil, recorded in the manifest and in "
+                        "each sample's pupil_diameter_mm)")
+    p.add_argument("--light-steps-per-min", type=finite(0.0, 600.0), metavar="RATE",
+                   help="with --pupil dynamic: mean rate of random light changes the pupil "
+                        "answers (default 0: hippus only)")
     p.add_argument("--no-masks", action="store_true",
                    help="write no segmentation masks (frames/NNNNNN_mask.png; they cost ~2-3 %% "
                         "of a frame's render)")

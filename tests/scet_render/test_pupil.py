@@ -237,3 +237,51 @@ def test_a_trajectory_without_a_pupil_trace_keeps_the_scene_size(paper):
     d = pupil_diameters(traced, t, 4e-3)
     assert np.all(np.isfinite(d)) and np.ptp(d) > 0
     assert math.isclose(traced.pupil.base_diameter_m, 4e-3)
+
+
+def test_scet_render_pupil_dynamic_labels_the_trace_it_renders(tmp_path, capsys):
+    """``scet render --pupil dynamic``: the manifest records the dynamics, each strobe's
+    ``pupil_diameter_mm`` is the seeded trace of the same trajectory at its instant (to float
+    rounding of the JSON, 1e-9 mm), and the pupil moves (hippus: nonzero range over 2 frames).
+    Without the flag the manifest has no ``pupil`` and every label is the scene's 4 mm."""
+    import json
+
+    pytest.importorskip("mitsuba")
+    from scet_render.cli import main
+    from scet_render.dataset import dataset_trajectory
+    from scet_render.motion import PupilModel
+    from tests.scet_render.test_workflow import _small_scene
+
+    scene = _small_scene(tmp_path / "small.toml")
+    common = ["--frames", "2", "--spp", "1", "--cornea", "conductor", "--no-masks"]
+    assert main(["render", str(scene), *common, "--pupil", "dynamic", "--seed", "3",
+                 "--out", str(tmp_path / "dyn")]) == 0
+    assert main(["render", str(scene), *common, "--seed", "3", "--out", str(tmp_path / "fix")]) == 0
+    capsys.readouterr()
+
+    def labels(folder):
+        lines = (tmp_path / folder / "labels.jsonl").read_text().splitlines()
+        rows = [json.loads(line) for line in lines]
+        return (np.array([r["time_s"] for r in rows]),
+                np.array([r["pupil_diameter_mm"] for r in rows]))
+
+    manifest = json.loads((tmp_path / "dyn" / "manifest.json").read_text())
+    assert manifest["pupil"]["hippus_rms_mm"] == PupilModel().hippus_rms_mm
+    t, d = labels("dyn")
+    setup = load_scene(scene)
+    traj = dataset_trajectory(setup, "fixations", 2, 3, PupilModel())
+    np.testing.assert_allclose(d, 1e3 * pupil_diameters(traj, t, setup.eye.pupil_diameter_m),
+                               atol=1e-9)
+    assert np.ptp(d) > 0
+    assert "pupil" not in json.loads((tmp_path / "fix" / "manifest.json").read_text())
+    assert np.all(labels("fix")[1] == 4.0)
+
+
+def test_scet_render_refuses_light_steps_without_dynamic_pupil(tmp_path, capsys):
+    from scet_render.cli import main
+
+    assert main(["render", "paper_sim", "--frames", "1", "--light-steps-per-min", "2",
+                 "--out", str(tmp_path / "d")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--pupil dynamic" in err
+    assert not (tmp_path / "d").exists()
