@@ -119,6 +119,12 @@ class StrobeLabel:
         not seen; None for older datasets.
     pupil_diameter_mm : float, optional
         The pupil's diameter at the strobe instant; None for older datasets.
+    pupil_occluder : str, optional
+        Moving lids only: "none", "lid" or "lash", what blocks the pupil centre's refracted
+        ray to the camera; None without moving lids and for older datasets.
+    pupil_edge_visible_fraction : float, optional
+        Moving lids only: the share of the pupil edge's 64 points whose refracted ray reaches
+        the camera unblocked (1: the whole outline is seen); None as above.
     """
 
     frame: int
@@ -140,6 +146,8 @@ class StrobeLabel:
     pupil_center_px: np.ndarray | None = None
     pupil_ellipse_px: np.ndarray | None = None
     pupil_diameter_mm: float | None = None
+    pupil_occluder: str | None = None
+    pupil_edge_visible_fraction: float | None = None
 
 
 def _exr():

@@ -65,8 +65,11 @@ def frame_labels(setup: Setup, trajectory: Trajectory, frame: int, bands=None) -
     lids = None
     if setup.eyelids is not None:
         closure = trajectory.lid_closure_at(time_s)
-        lids = _occluder(setup).glints(yaw, pitch, closure)
+        occluder = _occluder(setup)
+        lids = occluder.glints(yaw, pitch, closure)
         visible = visible & ~lids.hidden
+        pupil_blocked = occluder.toward_camera(pitch, closure, pupil.surface_m)  # (m, 1 + E)
+        edge_seen = np.isfinite(pupil.surface_m[:, 1:, 0]) & (pupil_blocked[:, 1:] == 0)
     out = []
     for i, b in enumerate(bands):
         full_start, full_stop = min(b.full_rows[0], N), min(b.full_rows[1], N)
@@ -95,6 +98,8 @@ def frame_labels(setup: Setup, trajectory: Trajectory, frame: int, bands=None) -
                 "lid_closure": float(closure[i]),
                 "glints_occluder": occluder_names(lids.occluder[i]),
                 "glints_blocked_fraction": [float(f) for f in lids.blocked_fraction[i]],
+                "pupil_occluder": OCCLUDER_NAMES[int(pupil_blocked[i, 0])],
+                "pupil_edge_visible_fraction": float(edge_seen[i].mean()),
             })
     return out
 
@@ -257,5 +262,13 @@ def _lid_fields(d: Doc, n: int) -> dict:
             and all(isinstance(x, str) and x in OCCLUDER_NAMES for x in names)):
         raise d.error("glints_occluder", f"expected {n} names from {list(OCCLUDER_NAMES)}")
     fraction = d.array("glints_blocked_fraction", (n,), lo=0.0, hi=1.0)
-    return {"lid_closure": d.number("lid_closure", lo=0.0, hi=1.0),
-            "glints_occluder": tuple(names), "glints_blocked_fraction": fraction}
+    out = {"lid_closure": d.number("lid_closure", lo=0.0, hi=1.0),
+           "glints_occluder": tuple(names), "glints_blocked_fraction": fraction}
+    if d.has("pupil_occluder"):  # absent from datasets written before the pupil's occlusion
+        pupil = d.data["pupil_occluder"]
+        if not (isinstance(pupil, str) and pupil in OCCLUDER_NAMES):
+            raise d.error("pupil_occluder", f"expected one of {list(OCCLUDER_NAMES)}")
+        out["pupil_occluder"] = pupil
+        out["pupil_edge_visible_fraction"] = d.number("pupil_edge_visible_fraction",
+                                                      lo=0.0, hi=1.0)
+    return out

@@ -48,6 +48,15 @@ pulse order::
     pupil_diameter_mm      the pupil's diameter at the strobe instant (the scene's
                            eye.pupil_diameter_mm, or the trajectory's pupil trace)
 
+Scenes with moving lids (``[eyelids]``) add, beside ``lid_closure``, ``glints_occluder`` and
+``glints_blocked_fraction``::
+
+    pupil_occluder               "none", "lid" or "lash": what blocks the pupil centre's
+                                 refracted ray on its way from the cornea to the camera
+    pupil_edge_visible_fraction  share of the 64 edge points whose refracted ray reaches the
+                                 camera unblocked (the ellipse is fitted to all 64 regardless:
+                                 the outline where the lid covers it is the pupil's, not seen)
+
 Datasets written before the pupil labels existed lack the three pupil keys (their
 :class:`StrobeLabel` fields read None); the format version stays 1. The ellipse's centre is
 not the centre's image: perspective and the cornea's uneven magnification put them 1-2 px

@@ -13,6 +13,10 @@ rays taken into each lid's rest frame). Per glint:
   truncated spot whose centroid is biased;
 * ``occluder``: what blocks it, :data:`OCCLUDER_NAMES` ("lid" wins over "lash" when both do).
 
+:meth:`LidOccluder.toward_camera` tests other light paths the same way: from points where a
+ray leaves the cornea toward the camera (the pupil's refraction points, for the pupil labels'
+``pupil_occluder`` and ``pupil_edge_visible_fraction``).
+
 Only meaningful where the glint exists (on the corneal cap, seen by camera and light).
 """
 
@@ -129,6 +133,42 @@ class LidOccluder:
                                                       float(ti))))
                          for oi, di, ti in zip(o, d, t)], dtype=bool)
 
+    def _segments(self, pitch, closure, start, ends) -> dict[str, np.ndarray]:
+        """Per part, (m, r) bool: does it meet any of the segments from ``start`` (m, r, 3) to
+        each of ``ends`` (each (m, r, 3)), world frame (m), at the m poses' lid rotations?"""
+        c_e = self.setup.eye.rotation_center_m
+        seg = np.stack([np.asarray(e, np.float64) for e in ends], axis=0) - start[None]
+        length = np.linalg.norm(seg, axis=-1)
+        direction = seg / np.maximum(length, 1e-30)[..., None]
+        rot_up, rot_low = lid_rotations_rad(self.lids, pitch, closure)
+        blocked = {}
+        for name in self._scenes:
+            angle = rot_low if name == "lid_lower" else rot_up
+            Rt = np.swapaxes(_rotation_x(angle), -1, -2)  # world -> rest frame, (m, 3, 3)
+            o = np.einsum("mij,smrj->smri", Rt, np.broadcast_to(start - c_e, seg.shape)) + c_e
+            d = np.einsum("mij,smrj->smri", Rt, direction)
+            hit = self._blocked(name, o.reshape(-1, 3), d.reshape(-1, 3), length.reshape(-1))
+            blocked[name] = hit.reshape(seg.shape[:-1]).any(axis=0)
+        return blocked
+
+    def toward_camera(self, pitch_rad, closure, points_m) -> np.ndarray:
+        """(m, r) int8 :data:`OCCLUDER_NAMES` codes: what blocks the straight path from each
+        of ``points_m`` (m, r, 3), world frame (m; points on the cornea where a ray from inside
+        leaves toward the camera, e.g. the pupil's refraction points) to the camera, at m eye
+        pitches and blink closures; NaN points give "none"."""
+        pts = np.asarray(points_m, np.float64)
+        pitch = np.atleast_1d(np.asarray(pitch_rad, np.float64))
+        closure = np.broadcast_to(np.asarray(closure, np.float64), pitch.shape)
+        if pts.ndim != 3 or pts.shape[0] != pitch.size or pts.shape[2] != 3:
+            raise ValueError(f"points_m must be (m, r, 3) for {pitch.size} poses, got {pts.shape}")
+        finite = np.isfinite(pts).all(axis=-1)
+        O = self.setup.camera.position_m
+        start = np.where(finite[..., None], pts, O + np.array([0.0, 0.0, 1e-3]))
+        blocked = self._segments(pitch, closure, start, [np.broadcast_to(O, start.shape)])
+        lid = blocked["lid_upper"] | blocked["lid_lower"]
+        lash = blocked.get("lashes", np.zeros_like(lid))
+        return np.where(finite & lid, 1, np.where(finite & lash, 2, 0)).astype(np.int8)
+
     def glints(self, yaw_rad, pitch_rad, closure=0.0) -> GlintOcclusion:
         """Occlusion of every light's glint at m eye poses and blink closures ((m,) each)."""
         yaw = np.atleast_1d(np.asarray(yaw_rad, np.float64))
@@ -137,7 +177,6 @@ class LidOccluder:
         m, n, K = yaw.size, self._lights.shape[0], self._disk.shape[0]
         eye, cam = self.setup.eye, self.setup.camera
         O = cam.position_m
-        c_e = eye.rotation_center_m
         # Emitter disk samples facing each cornea centre: (m, n, K, 3).
         center = eye.cornea_center(yaw, pitch).reshape(m, 3)
         toward = center[:, None, :] - self._lights[None]
@@ -158,19 +197,8 @@ class LidOccluder:
             P, _, ok = conic_reflection_points(O, center + eye.cornea_radius_m * axis, axis,
                                                eye.cornea_radius_m, eye.cornea_asphericity, flat)
         P = np.where(np.isfinite(P), P, center[:, None, :])  # no reflection: nothing to block
-        ends = np.stack([np.broadcast_to(O, P.shape), flat], axis=0)  # (2, m, nK, 3)
-        seg = ends - P[None]
-        length = np.linalg.norm(seg, axis=-1)
-        direction = seg / np.maximum(length, 1e-30)[..., None]
-        rot_up, rot_low = lid_rotations_rad(self.lids, pitch, closure)
-        blocked = {}
-        for name in self._scenes:
-            angle = rot_low if name == "lid_lower" else rot_up
-            Rt = np.swapaxes(_rotation_x(angle), -1, -2)  # world -> rest frame, (m, 3, 3)
-            o = np.einsum("mij,smrj->smri", Rt, np.broadcast_to(P - c_e, seg.shape)) + c_e
-            d = np.einsum("mij,smrj->smri", Rt, direction)
-            hit = self._blocked(name, o.reshape(-1, 3), d.reshape(-1, 3), length.reshape(-1))
-            blocked[name] = hit.reshape(2, m, n, K).any(axis=0)
+        blocked = self._segments(pitch, closure, P, [np.broadcast_to(O, P.shape), flat])
+        blocked = {k: v.reshape(m, n, K) for k, v in blocked.items()}
         lid = blocked["lid_upper"] | blocked["lid_lower"]
         lash = blocked.get("lashes", np.zeros_like(lid))
         fraction = (lid | lash).mean(axis=-1)

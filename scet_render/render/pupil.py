@@ -45,12 +45,17 @@ class PupilImage:
         NaN where any edge point is not visible.
     diameter_m : (...,) float
         The pupil's diameter.
+    surface_m : (..., 1 + BOUNDARY_POINTS, 3) float
+        Where the rays of the centre (first) and the edge points leave the cornea toward the
+        camera (world frame, m; NaN where that ray does not exist): the start of the path a
+        lid or lash can block (:meth:`~scet_render.render.occlusion.LidOccluder.toward_camera`).
     """
 
     center_px: np.ndarray
     center_visible: np.ndarray
     ellipse_px: np.ndarray
     diameter_m: np.ndarray
+    surface_m: np.ndarray
 
 
 def pupil_points(setup: Setup, yaw_rad, pitch_rad, diameter_m, count: int = BOUNDARY_POINTS):
@@ -111,13 +116,15 @@ def pupil_image(setup: Setup, yaw_rad, pitch_rad, diameter_m=None, *,
     apex = eye.rotation_center_m + (eye.cornea_offset_m + eye.cornea_radius_m) * g
     n = eye.refractive_index if refractive_index is None else float(refractive_index)
     points = np.concatenate([center[..., None, :], edge], axis=-2)
-    px, visible = project_through_cornea(setup.camera, apex, g, eye.cornea_radius_m,
-                                         eye.cornea_asphericity, n, points,
-                                         limbus_depth_m=eye.limbus_depth_m)
+    px, visible, surface = project_through_cornea(setup.camera, apex, g, eye.cornea_radius_m,
+                                                  eye.cornea_asphericity, n, points,
+                                                  limbus_depth_m=eye.limbus_depth_m,
+                                                  return_points=True)
     batch = center.shape[:-1]
     ellipse = np.full(batch + (5,), np.nan)
     edge_ok = visible[..., 1:].all(axis=-1)
     for idx in zip(*np.nonzero(edge_ok)) if batch else ([()] if edge_ok else []):
         ellipse[idx] = fit_ellipse_px(px[idx][1:])
     return PupilImage(px[..., 0, :], visible[..., 0], ellipse,
-                      np.broadcast_to(np.asarray(d, dtype=np.float64), batch).copy())
+                      np.broadcast_to(np.asarray(d, dtype=np.float64), batch).copy(),
+                      np.where(visible[..., None], surface, np.nan))
