@@ -8,7 +8,7 @@ limits of a band's estimate (:data:`MIN_GLINTS`, :data:`MAX_RESIDUAL_PX`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -19,6 +19,7 @@ from ..gaze import CalibratedProblems, geometric_gaze, polynomial_gaze
 from ..matching import BandFollower, GlintMatcher
 from ..reasons import Reason
 from ..setup import Setup
+from .kernel import CheapBand
 from .samples import BandPrior
 
 __all__ = ["BandContext", "METHODS", "MIN_GLINTS", "MAX_RESIDUAL_PX"]
@@ -56,6 +57,9 @@ class BandContext:
         The cheap path (None: the hypothesis search on every band).
     prior : BandPrior or None
         Motion model of the prior sparse bands borrow (None: no prior assistance).
+    kernel : CheapBand or None
+        The cheap path's band step as one compiled call (:mod:`estimator.tracking.kernel`;
+        None: the Python form), built by :meth:`with_kernel`.
     """
 
     setup: Setup
@@ -67,6 +71,12 @@ class BandContext:
     matcher: GlintMatcher
     follower: BandFollower | None
     prior: BandPrior | None
+    kernel: CheapBand | None = None
+
+    def with_kernel(self) -> BandContext:
+        """This context with the compiled band step of its cheap path, where it has one
+        (:meth:`CheapBand.of`)."""
+        return replace(self, kernel=CheapBand.of(self, MAX_RESIDUAL_PX))
 
     @property
     def fast_fits(self) -> bool:
