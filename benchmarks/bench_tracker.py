@@ -8,7 +8,9 @@ or with ``--dataset DIR`` the PNG frames of a rendered dataset. Detection is tim
 :class:`estimator.glints.GlintDetector` (one pass over the frames as a stream, after a warm-up
 pass that loads its compiled kernels). End to end, :meth:`estimator.tracker.Tracker.process`
 (detect, group by strobe, predict, assign, fit, map), both gaze methods, ``cheap=False`` (the
-hypothesis search on every band: the path before issue 15), ``cheap=True`` with the matcher's
+hypothesis search on every band: the path before issue 15), ``cheap=True`` with its band step
+in Python (the compiled step of :mod:`estimator.tracking.kernel` off: the path before issue 31's
+kernel, whose samples must be the compiled step's bit for bit), ``cheap=True`` with the matcher's
 numpy steps (:mod:`estimator.matching.kernels` off, and with it the search's compiled refits
 and predictions: as on an install without Numba) and
 ``cheap=True`` alternated over ``--rounds`` rounds on the same frames (the machine's speed
@@ -105,7 +107,8 @@ clock = time.perf_counter
 #: Whether the matcher's compiled steps run (Numba installed, JIT on).
 KERNELS = match_kernels.ENABLED
 #: follow: the cheap path's prediction, assignment, fit and checks as one compiled call
-#: (estimator.matching.follow_kernel); with the Python form they count as predict, assign, fit.
+#: (estimator.tracking.kernel: with polynomial gaze's centre fit and the map in it); with the
+#: Python form they count as predict, assign, fit.
 STAGES = ("detect", "group", "follow", "predict", "assign", "fit", "map", "search", "prior",
           "other")
 
@@ -190,6 +193,18 @@ def same(a, b) -> bool:
         for x, y in zip(a, b))
 
 
+def bit_identical(a, b) -> bool:
+    """Whether samples ``a`` and ``b`` are the same to the last bit: every field, arrays by
+    their bytes (the compiled band step against the Python one)."""
+    def bits(v):
+        v = np.atleast_1d(np.asarray(v))
+        return v.dtype.str, v.shape, v.tobytes()
+
+    return len(a) == len(b) and all(
+        all(bits(getattr(x, n)) == bits(getattr(y, n)) for n in x.__dataclass_fields__)
+        for x, y in zip(a, b))
+
+
 class _Timed:
     """Wraps a callable, adding its seconds to ``totals[stage]`` (not inside a search or a
     sparse band's identification from the prior, whose predictions and assignments count as
@@ -227,6 +242,10 @@ def breakdown(setup, cal, method, frames, compiled=True) -> dict:
     totals = defaultdict(float)
     tr = Tracker(setup, cal, method)
     tr.follower.compiled = compiled and tr.follower.compiled
+    # The compiled band step (estimator.tracking.kernel) counts as follow: it identifies, fits
+    # and maps in one call; the Python form runs without it.
+    tr.context = replace(tr.context, kernel=_Timed(tr.context.kernel, totals, "follow")
+                         if compiled and tr.context.kernel is not None else None)
     tr.follower._follow_compiled = _Timed(tr.follower._follow_compiled, totals, "follow")
     tr.detector = _Timed(tr.detector, totals, "detect")
     tr.follower.predict = _Timed(tr.follower.predict, totals, "predict")
@@ -439,20 +458,25 @@ def main(argv=None):
     for method in ("polynomial", "geometric"):
         for cheap in (False, True):  # compile the cheap path's kernels before timing
             run(Tracker(setup, cal, method, cheap=cheap), frames[:3])
-        modes = (False, True, "numpy") + (("focus",) if args.focus else ())
+        modes = (False, "python", True, "numpy") + (("focus",) if args.focus else ())
         rates = {m: [] for m in modes}
         bands = {m: [] for m in modes}
         walls = {m: [] for m in modes}
         agree, agree_numpy, agree_focus, counts = True, True, True, None
+        identical = True
         for _ in range(args.rounds):
             out = {}
             for cheap in modes:
                 # "numpy": the cheap path with the matcher's numpy steps (no matching kernels);
+                # "python": the cheap path with its band step in Python (the compiled step of
+                # estimator.tracking.kernel off: the path before it, in the same run);
                 # "focus": the cheap path with focused detection.
                 match_kernels.ENABLED = cheap != "numpy" and KERNELS
                 try:
                     tr = Tracker(setup, cal, method, cheap=bool(cheap),
                                  focus_detection=cheap == "focus")
+                    if cheap == "python":
+                        tr.context = replace(tr.context, kernel=None)
                     samples, lat = run(tr, frames, bands[cheap], walls[cheap])
                 finally:
                     match_kernels.ENABLED = KERNELS
@@ -462,13 +486,16 @@ def main(argv=None):
                     counts = dict(tr.counts)
             agree &= same(out[False], out[True])
             agree_numpy &= same(out["numpy"], out[True])
+            identical &= bit_identical(out["python"], out[True])
             if args.focus:
                 agree_focus &= same(out[True], out["focus"])
             ok = sum(s.ok for s in out[True])
         ratio = np.array(rates[True]) / np.array(rates[False])
         ratio_numpy = np.array(rates[True]) / np.array(rates["numpy"])
+        ratio_step = np.array(rates[True]) / np.array(rates["python"])
         for cheap, name in ((False, "search every band"), ("numpy", "cheap path, numpy matcher"),
-                            (True, "cheap path"), ("focus", "cheap path, focused detection")):
+                            ("python", "cheap path, Python band step"), (True, "cheap path"),
+                            ("focus", "cheap path, focused detection")):
             if cheap not in rates:
                 continue
             r, lat = np.array(rates[cheap]), np.array(walls[cheap]) * 1e3
@@ -485,6 +512,9 @@ def main(argv=None):
               f"left to the prior unsearched; {ok}/{len(out[True])} "
               f"samples estimated ({np.median(rates[True]) * ok / len(out[True]):.0f} "
               f"estimates/s); same samples: {'yes' if agree else 'NO'}")
+        print(f"  compiled / Python band step: {np.median(ratio_step):.2f}x (rounds "
+              f"{ratio_step.min():.2f}-{ratio_step.max():.2f}); samples identical bit for bit: "
+              f"{'yes' if identical else 'NO'}")
         print(f"  matching kernels / numpy matcher: {np.median(ratio_numpy):.2f}x (rounds "
               f"{ratio_numpy.min():.2f}-{ratio_numpy.max():.2f}); same samples: "
               f"{'yes' if agree_numpy else 'NO'}"
