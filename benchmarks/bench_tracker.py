@@ -476,7 +476,7 @@ def main(argv=None):
                     tr = Tracker(setup, cal, method, cheap=bool(cheap),
                                  focus_detection=cheap == "focus")
                     if cheap == "python":
-                        tr.context = replace(tr.context, kernel=None)
+                        tr.context = replace(tr.context, kernel=None, prior_kernel=None)
                     samples, lat = run(tr, frames, bands[cheap], walls[cheap])
                 finally:
                     match_kernels.ENABLED = KERNELS

@@ -20,6 +20,7 @@ from ..matching import BandFollower, GlintMatcher
 from ..reasons import Reason
 from ..setup import Setup
 from .kernel import CheapBand
+from .prior_kernel import PriorBand
 from .samples import BandPrior
 
 __all__ = ["BandContext", "METHODS", "MIN_GLINTS", "MAX_RESIDUAL_PX"]
@@ -60,6 +61,10 @@ class BandContext:
     kernel : CheapBand or None
         The cheap path's band step as one compiled call (:mod:`estimator.tracking.kernel`;
         None: the Python form), built by :meth:`with_kernel`.
+    prior_kernel : PriorBand or None
+        A sparse band's step from the prior as one compiled call
+        (:mod:`estimator.tracking.prior_kernel`; None: the Python form), built by
+        :meth:`with_kernel`.
     """
 
     setup: Setup
@@ -72,11 +77,13 @@ class BandContext:
     follower: BandFollower | None
     prior: BandPrior | None
     kernel: CheapBand | None = None
+    prior_kernel: PriorBand | None = None
 
     def with_kernel(self) -> BandContext:
-        """This context with the compiled band step of its cheap path, where it has one
-        (:meth:`CheapBand.of`)."""
-        return replace(self, kernel=CheapBand.of(self, MAX_RESIDUAL_PX))
+        """This context with the compiled band steps of its cheap path and its prior, where
+        it has them (:meth:`CheapBand.of`, :meth:`PriorBand.of`)."""
+        return replace(self, kernel=CheapBand.of(self, MAX_RESIDUAL_PX),
+                       prior_kernel=PriorBand.of(self, MAX_RESIDUAL_PX))
 
     @property
     def fast_fits(self) -> bool:
