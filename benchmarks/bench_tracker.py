@@ -8,7 +8,9 @@ or with ``--dataset DIR`` the PNG frames of a rendered dataset. Detection is tim
 :class:`estimator.glints.GlintDetector` (one pass over the frames as a stream, after a warm-up
 pass that loads its compiled kernels). End to end, :meth:`estimator.tracker.Tracker.process`
 (detect, group by strobe, predict, assign, fit, map), both gaze methods, ``cheap=False`` (the
-hypothesis search on every band: the path before issue 15), ``cheap=True`` with the matcher's
+hypothesis search on every band: the path before issue 15), ``cheap=True`` with its band step
+in Python (the compiled step of :mod:`estimator.tracking.kernel` off: the path before issue 31's
+kernel, whose samples must be the compiled step's bit for bit), ``cheap=True`` with the matcher's
 numpy steps (:mod:`estimator.matching.kernels` off, and with it the search's compiled refits
 and predictions: as on an install without Numba) and
 ``cheap=True`` alternated over ``--rounds`` rounds on the same frames (the machine's speed
@@ -28,8 +30,9 @@ Usage:
     python benchmarks/bench_tracker.py [--frames 60] [--rounds 3] [--dataset DIR [--pulses N]]
                                        [--calibration FILE] [--conic Q] [--clock cpu] [--focus]
 
-Each band step's latency (:meth:`Tracker.band`, from the band's detections to its sample) is
-printed as p50/p99 beside the frame's, with the rest of the frame's time (detection, grouping)
+Each band step's latency (:meth:`Tracker.band`, from the band's detections to its sample; with
+``--clock cpu`` the thread's CPU time where that clock ticks finely) is printed as p50/p99
+beside the frame's, with the rest of the frame's time (detection, grouping)
 per band. ``--clock cpu`` times by the process's CPU time instead of the wall clock: on a
 machine shared with other work it is what the tracker costs one core. On a Raspberry Pi (an
 ARM machine) the last line of each method compares the measured samples/s with what the
@@ -102,10 +105,15 @@ REFERENCE_X86 = {"polynomial": 3337.0, "geometric": 3903.0}
 #: The clock of every timing: wall time (default), or the process's CPU time (``--clock
 #: cpu``: on a machine shared with other work, what the tracker itself costs one core).
 clock = time.perf_counter
+#: The clock of a band step's latency: the wall clock, or with ``--clock cpu`` the thread's CPU
+#: time where it ticks finely (CLOCK_THREAD_CPUTIME_ID; 1 ns here): on a loaded machine the
+#: wall clock's p99 is the scheduler's, not the tracker's.
+band_clock = time.perf_counter
 #: Whether the matcher's compiled steps run (Numba installed, JIT on).
 KERNELS = match_kernels.ENABLED
 #: follow: the cheap path's prediction, assignment, fit and checks as one compiled call
-#: (estimator.matching.follow_kernel); with the Python form they count as predict, assign, fit.
+#: (estimator.tracking.kernel: with polynomial gaze's centre fit and the map in it); with the
+#: Python form they count as predict, assign, fit.
 STAGES = ("detect", "group", "follow", "predict", "assign", "fit", "map", "search", "prior",
           "other")
 
@@ -118,18 +126,19 @@ def synthetic_frames(setup, n: int, rng):
 
 def run(tracker, frames, band_s=None, wall_s=None):
     """Samples and per-frame seconds (:data:`clock`) of one pass; with lists ``band_s`` and
-    ``wall_s``, the wall seconds of every band step (:meth:`Tracker.band`: from the band's
-    detections to its sample) and of every frame appended (latencies are wall time: the CPU
-    clock of a process ticks too coarsely on some kernels, 4 ms here, to time one band)."""
+    ``wall_s``, the seconds of every band step (:meth:`Tracker.band`: from the band's
+    detections to its sample; :data:`band_clock`) and the wall seconds of every frame appended
+    (the process's CPU clock ticks too coarsely on some kernels, 4 ms on one measured, to time
+    one band; the thread's, where it ticks finely, times it)."""
     if band_s is not None:
         step = tracker.band
 
         def timed_band(*a, **k):
-            t = time.perf_counter()
+            t = band_clock()
             try:
                 return step(*a, **k)
             finally:
-                band_s.append(time.perf_counter() - t)
+                band_s.append(band_clock() - t)
 
         tracker.band = timed_band
     samples, lat = [], []
@@ -190,6 +199,18 @@ def same(a, b) -> bool:
         for x, y in zip(a, b))
 
 
+def bit_identical(a, b) -> bool:
+    """Whether samples ``a`` and ``b`` are the same to the last bit: every field, arrays by
+    their bytes (the compiled band step against the Python one)."""
+    def bits(v):
+        v = np.atleast_1d(np.asarray(v))
+        return v.dtype.str, v.shape, v.tobytes()
+
+    return len(a) == len(b) and all(
+        all(bits(getattr(x, n)) == bits(getattr(y, n)) for n in x.__dataclass_fields__)
+        for x, y in zip(a, b))
+
+
 class _Timed:
     """Wraps a callable, adding its seconds to ``totals[stage]`` (not inside a search or a
     sparse band's identification from the prior, whose predictions and assignments count as
@@ -223,10 +244,18 @@ class _TimedMapping:
 def breakdown(setup, cal, method, frames, compiled=True) -> dict:
     """Seconds per stage of one cheap-path pass (the stages wrapped where they are called;
     nested stages are subtracted from their callers); ``compiled`` False runs the Python
-    form of the cheap path's follow, whose predict, assign and fit are timed apart."""
+    forms of the band steps (the cheap path's follow, whose predict, assign and fit are timed
+    apart, and the prior's)."""
     totals = defaultdict(float)
     tr = Tracker(setup, cal, method)
     tr.follower.compiled = compiled and tr.follower.compiled
+    # The compiled band steps (estimator.tracking.kernel, prior_kernel) count as follow and
+    # prior: each identifies, fits and maps in one call; the Python forms run without them.
+    ctx = tr.context
+    tr.context = replace(
+        ctx, kernel=_Timed(ctx.kernel, totals, "follow") if compiled and ctx.kernel else None,
+        prior_kernel=_Timed(ctx.prior_kernel, totals, "prior")
+        if compiled and ctx.prior_kernel else None)
     tr.follower._follow_compiled = _Timed(tr.follower._follow_compiled, totals, "follow")
     tr.detector = _Timed(tr.detector, totals, "detect")
     tr.follower.predict = _Timed(tr.follower.predict, totals, "predict")
@@ -390,8 +419,10 @@ def main(argv=None):
                          "frames; default coefficients those of tests/estimator/"
                          "test_camera_file_tracker.py)")
     args = ap.parse_args(argv)
-    global clock
+    global clock, band_clock
     clock = time.process_time if args.clock == "cpu" else time.perf_counter
+    if args.clock == "cpu" and time.get_clock_info("thread_time").resolution <= 1e-6:
+        band_clock = time.thread_time
     setup = load_scene("paper_sim")
     if args.conic is not None:
         if args.dataset is not None:
@@ -439,45 +470,58 @@ def main(argv=None):
     for method in ("polynomial", "geometric"):
         for cheap in (False, True):  # compile the cheap path's kernels before timing
             run(Tracker(setup, cal, method, cheap=cheap), frames[:3])
-        modes = (False, True, "numpy") + (("focus",) if args.focus else ())
+        modes = (False, "python", True, "numpy") + (("focus",) if args.focus else ())
         rates = {m: [] for m in modes}
         bands = {m: [] for m in modes}
         walls = {m: [] for m in modes}
+        spent = {m: 0.0 for m in modes}  # seconds of every round's frames (clock)
         agree, agree_numpy, agree_focus, counts = True, True, True, None
+        identical = True
         for _ in range(args.rounds):
             out = {}
             for cheap in modes:
                 # "numpy": the cheap path with the matcher's numpy steps (no matching kernels);
+                # "python": the cheap path with its band step in Python (the compiled step of
+                # estimator.tracking.kernel off: the path before it, in the same run);
                 # "focus": the cheap path with focused detection.
                 match_kernels.ENABLED = cheap != "numpy" and KERNELS
                 try:
                     tr = Tracker(setup, cal, method, cheap=bool(cheap),
                                  focus_detection=cheap == "focus")
+                    if cheap == "python":
+                        tr.context = replace(tr.context, kernel=None, prior_kernel=None)
                     samples, lat = run(tr, frames, bands[cheap], walls[cheap])
                 finally:
                     match_kernels.ENABLED = KERNELS
                 rates[cheap].append(len(samples) / lat.sum())
+                spent[cheap] += lat.sum()
                 out[cheap] = samples
                 if cheap is True:
                     counts = dict(tr.counts)
             agree &= same(out[False], out[True])
             agree_numpy &= same(out["numpy"], out[True])
+            identical &= bit_identical(out["python"], out[True])
             if args.focus:
                 agree_focus &= same(out[True], out["focus"])
             ok = sum(s.ok for s in out[True])
         ratio = np.array(rates[True]) / np.array(rates[False])
         ratio_numpy = np.array(rates[True]) / np.array(rates["numpy"])
+        ratio_step = np.array(rates[True]) / np.array(rates["python"])
         for cheap, name in ((False, "search every band"), ("numpy", "cheap path, numpy matcher"),
-                            (True, "cheap path"), ("focus", "cheap path, focused detection")):
+                            ("python", "cheap path, Python band step"), (True, "cheap path"),
+                            ("focus", "cheap path, focused detection")):
             if cheap not in rates:
                 continue
             r, lat = np.array(rates[cheap]), np.array(walls[cheap]) * 1e3
             band = np.array(bands[cheap]) * 1e3
-            # The rest of a frame's time (detection, grouping, the band layout) per band (wall).
-            rest = (lat.sum() - band.sum()) / max(len(band), 1)
+            # The rest of a frame's time (detection, grouping, the band layout) per band, on the
+            # frames' clock (the band steps' is the same kind: wall, or CPU time of this one
+            # thread).
+            rest = (1e3 * spent[cheap] - band.sum()) / max(len(band), 1)
             print(f"tracker {method}, {name}: {np.median(r):.0f} samples/s "
                   f"(rounds {r.min():.0f}-{r.max():.0f}), latency p50 {np.percentile(lat, 50):.2f} ms, "
-                  f"p99 {np.percentile(lat, 99):.2f} ms per frame; band step p50 "
+                  f"p99 {np.percentile(lat, 99):.2f} ms per frame (wall); band step "
+                  f"({'thread CPU time' if band_clock is time.thread_time else 'wall'}) p50 "
                   f"{np.percentile(band, 50):.3f} ms, p99 {np.percentile(band, 99):.3f} ms "
                   f"(+ {rest:.3f} ms a band of detection and the frame's glue)")
         print(f"  cheap / search: {np.median(ratio):.1f}x (rounds {ratio.min():.1f}-{ratio.max():.1f}); "
@@ -485,6 +529,9 @@ def main(argv=None):
               f"left to the prior unsearched; {ok}/{len(out[True])} "
               f"samples estimated ({np.median(rates[True]) * ok / len(out[True]):.0f} "
               f"estimates/s); same samples: {'yes' if agree else 'NO'}")
+        print(f"  compiled / Python band step: {np.median(ratio_step):.2f}x (rounds "
+              f"{ratio_step.min():.2f}-{ratio_step.max():.2f}); samples identical bit for bit: "
+              f"{'yes' if identical else 'NO'}")
         print(f"  matching kernels / numpy matcher: {np.median(ratio_numpy):.2f}x (rounds "
               f"{ratio_numpy.min():.2f}-{ratio_numpy.max():.2f}); same samples: "
               f"{'yes' if agree_numpy else 'NO'}"
@@ -499,7 +546,7 @@ def main(argv=None):
                   f"({100 * miss['missed'] / max(miss['glints'], 1):.2f} %); estimated "
                   f"{miss['whole_ok']} -> {miss['focused_ok']}; largest screen difference "
                   f"{1e3 * miss['dscreen_m']:.3g} mm")
-        for compiled, name in ((True, "cheap path"), (False, "cheap path, Python follow")):
+        for compiled, name in ((True, "cheap path"), (False, "cheap path, Python band steps")):
             b = breakdown(setup, cal, method, frames, compiled)
             per = {s: 1e6 * b[s] / b["samples"] for s in STAGES}
             print(f"  us per band ({name}): " + ", ".join(f"{s} {per[s]:.0f}" for s in STAGES)

@@ -7,8 +7,10 @@ angles, start, last estimate, velocity; immutable) and the stream's fixed
 :class:`BandContext` (:mod:`.context`: setup, calibration, fit problems, matcher, follower,
 prior; the one switch between the gaze methods), and returns the :class:`GazeSample` and the
 next state. A sparse band borrows the last estimate as a prior (:mod:`.assisted`); identified
-glints are fitted by the compiled small fit where it applies (:mod:`.estimates`); glints cut
-by a lash are flagged by their flux (:mod:`.cut_glints`). Samples and their CSV:
+glints are fitted by the compiled small fit where it applies (:mod:`.estimates`); with Numba
+a cheap band and a prior-assisted band each take one compiled call (:mod:`.kernel`,
+:mod:`.prior_kernel`: the same samples bit for bit); glints cut by a lash are flagged by their
+flux (:mod:`.cut_glints`). Samples and their CSV:
 :mod:`.samples`; reason codes: :class:`estimator.reasons.Reason`.
 """
 

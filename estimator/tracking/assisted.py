@@ -19,6 +19,8 @@ from ..gaze import posterior_covariance
 from ..reasons import Reason, prior_failure
 from .context import BandContext
 from .estimates import assisted_estimate
+from .prior_kernel import (AMBIGUOUS, ESTIMATED, FALLBACK, FIT_FAILED, NO_HYPOTHESIS,
+                           TOO_FEW_GLINTS)
 from .samples import GazeSample, estimated_sample, failed_sample, inverse_2x2
 from .state import StreamState
 
@@ -43,6 +45,10 @@ def assisted_sample(context: BandContext, state: StreamState, f: int, j: int, ti
     cov = prior.predict(cov0, time_s - last.time_s)
     if cov is None:
         return failed, state
+    if context.prior_kernel is not None and context.fast_fits:
+        got = compiled_assisted_sample(context, state, f, j, time_s, g, rows, failed, mean, cov)
+        if got is not None:
+            return got
     match = context.matcher.match_near(g, mean, cov, rows=rows)
     if not match.ok:
         return replace(failed, reason=prior_failure(match.reason)), state
@@ -79,3 +85,32 @@ def assisted_sample(context: BandContext, state: StreamState, f: int, j: int, ti
                             glints_px=g[used], light_index=lights, residual_px=rms,
                             confidence=match.confidence[used], prior_assisted=True), after
 
+
+
+#: The matcher's reason of each failure of the compiled step (prior_kernel's outcomes).
+_MATCH_FAILURES = {NO_HYPOTHESIS: Reason.NO_HYPOTHESIS, FIT_FAILED: Reason.FIT_FAILED,
+                   TOO_FEW_GLINTS: Reason.TOO_FEW_GLINTS, AMBIGUOUS: Reason.AMBIGUOUS}
+
+
+def compiled_assisted_sample(context: BandContext, state: StreamState, f: int, j: int,
+                             time_s: float, g, rows, failed: GazeSample, mean, cov):
+    """:func:`assisted_sample` from the prior ``mean`` (2,), ``cov`` (2, 2) with its match,
+    fit and posterior in one compiled call (:mod:`estimator.tracking.prior_kernel`): the
+    same sample and state, or None where the Python form must decide."""
+    outcome, rms, assign, conf, angles, center, xy, post = context.prior_kernel(
+        np.ascontiguousarray(g, dtype=np.float64), rows, mean, np.ascontiguousarray(cov))
+    if outcome == FALLBACK:
+        return None
+    if outcome != ESTIMATED:
+        return replace(failed, reason=prior_failure(_MATCH_FAILURES[outcome])), state
+    used = assign >= 0
+    lights = assign[used]
+    if not np.isfinite(post[0, 0]):
+        glints = context.band_glints(g[used], lights)
+        post = posterior_covariance(context.orbit, angles, np.isfinite(glints[..., 0]), cov,
+                                    context.prior.noise_px)[0]
+    after = state.estimated(time_s, angles, post, prior_angles_rad=angles.copy(),
+                            start=state.start)
+    return estimated_sample(f, j, time_s, screen_xy_m=xy, cornea_center_m=center,
+                            glints_px=g[used], light_index=lights, residual_px=rms,
+                            confidence=conf[used], prior_assisted=True), after

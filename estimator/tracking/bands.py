@@ -26,6 +26,7 @@ from ..reasons import IDENTITY_FAILURES, Reason, match_failure
 from .assisted import assisted_sample
 from .context import MAX_RESIDUAL_PX, MIN_GLINTS, BandContext
 from .estimates import searched_estimate
+from .kernel import ACCEPTED, FALLBACK
 from .samples import GazeSample, estimated_sample, failed_sample, inverse_2x2
 from .state import StreamState
 
@@ -119,6 +120,10 @@ def cheap_sample(context: BandContext, state: StreamState, f: int, j: int, time_
     prior = state.prior_angles_rad if fresh else state.carried_prior(time_s)
     if prior is None:
         return None
+    if context.kernel is not None and context.fast_fits and context.follower.compiled:
+        got = compiled_cheap_sample(context, state, f, j, time_s, g, rows, prior, fresh)
+        if got is not FALLBACK:
+            return got
     follower = context.follower
     got = follower.follow(g, rows, prior, prior_term=fresh)
     if got is None and not fresh and state.velocity_rad_s is not None:
@@ -161,3 +166,31 @@ def cheap_sample(context: BandContext, state: StreamState, f: int, j: int, time_
     return estimated_sample(f, j, time_s, screen_xy_m=xy, cornea_center_m=center,
                             glints_px=g[used], light_index=lights, residual_px=rms,
                             confidence=match.confidence[used]), after
+
+
+def compiled_cheap_sample(context: BandContext, state: StreamState, f: int, j: int,
+                          time_s: float, g, rows, prior, fresh: bool):
+    """:func:`cheap_sample` with its identification and estimate in one compiled call
+    (:mod:`estimator.tracking.kernel`), from the prior rotation ``prior`` (2,) (``fresh``:
+    the previous band's); the same sample and state, None where it declines, or
+    :data:`~estimator.tracking.kernel.FALLBACK` where the Python form must decide."""
+    retry = None
+    if not fresh and state.velocity_rad_s is not None:
+        retry = state.last.angles_rad  # the second try (cheap_sample's comment)
+    outcome, rms, assign, conf, x, center, JtJ, xy, fit_x = context.kernel(
+        np.ascontiguousarray(g, dtype=np.float64), rows, prior, fresh, retry, state.start)
+    if outcome != ACCEPTED:
+        return FALLBACK if outcome == FALLBACK else None
+    if context.implausible(state, time_s, x):
+        return None
+    used = assign >= 0
+    inv = inverse_2x2(JtJ)
+    cov = context.prior.noise_px ** 2 * inv if inv is not None else np.full((2, 2), np.inf)
+    if context.kernel.polynomial:
+        center, resume = fit_x, fit_x
+    else:
+        resume = x.copy()
+    after = state.estimated(time_s, x, cov, prior_angles_rad=x, start=resume.copy())
+    return estimated_sample(f, j, time_s, screen_xy_m=xy, cornea_center_m=center,
+                            glints_px=g[used], light_index=assign[used], residual_px=rms,
+                            confidence=conf[used]), after

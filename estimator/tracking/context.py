@@ -8,7 +8,7 @@ limits of a band's estimate (:data:`MIN_GLINTS`, :data:`MAX_RESIDUAL_PX`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -19,6 +19,8 @@ from ..gaze import CalibratedProblems, geometric_gaze, polynomial_gaze
 from ..matching import BandFollower, GlintMatcher
 from ..reasons import Reason
 from ..setup import Setup
+from .kernel import CheapBand
+from .prior_kernel import PriorBand
 from .samples import BandPrior
 
 __all__ = ["BandContext", "METHODS", "MIN_GLINTS", "MAX_RESIDUAL_PX"]
@@ -56,6 +58,13 @@ class BandContext:
         The cheap path (None: the hypothesis search on every band).
     prior : BandPrior or None
         Motion model of the prior sparse bands borrow (None: no prior assistance).
+    kernel : CheapBand or None
+        The cheap path's band step as one compiled call (:mod:`estimator.tracking.kernel`;
+        None: the Python form), built by :meth:`with_kernel`.
+    prior_kernel : PriorBand or None
+        A sparse band's step from the prior as one compiled call
+        (:mod:`estimator.tracking.prior_kernel`; None: the Python form), built by
+        :meth:`with_kernel`.
     """
 
     setup: Setup
@@ -67,6 +76,14 @@ class BandContext:
     matcher: GlintMatcher
     follower: BandFollower | None
     prior: BandPrior | None
+    kernel: CheapBand | None = None
+    prior_kernel: PriorBand | None = None
+
+    def with_kernel(self) -> BandContext:
+        """This context with the compiled band steps of its cheap path and its prior, where
+        it has them (:meth:`CheapBand.of`, :meth:`PriorBand.of`)."""
+        return replace(self, kernel=CheapBand.of(self, MAX_RESIDUAL_PX),
+                       prior_kernel=PriorBand.of(self, MAX_RESIDUAL_PX))
 
     @property
     def fast_fits(self) -> bool:

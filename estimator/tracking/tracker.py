@@ -166,7 +166,7 @@ class Tracker:
         if cheap and prior is not None and (gaze_map is None or gaze_map.n_features == 3):
             follower = BandFollower(matcher, FollowParams(min_matches=MIN_GLINTS))
         self.context = BandContext(setup, calibration, method, mapping, gaze_map, problems,
-                                   matcher, follower, prior)
+                                   matcher, follower, prior).with_kernel()
         self.counts = {"cheap": 0, "search": 0, "unfillable": 0, "again": 0}
         #: The last frame index taken (a frame not after it is ``frame_out_of_order``).
         self.last_frame_index: int | None = None
