@@ -25,7 +25,7 @@ INSTALLED_AS = {"hardware": "scet_hardware"}
 #: first dotted part under the package names the layer (a subpackage or a top-level module).
 LAYERS = {
     "estimator": [
-        {"errors", "checks", "formats", "reasons"},
+        {"errors", "checks", "formats", "reasons", "jitcache"},
         {"geometry", "lens"},
         {"eye", "setup"},
         {"eyelids", "lens_keys", "scene_checks", "scene_wire"},
