@@ -60,10 +60,13 @@ class LedScore:
     reference : (P, T) bool
         Where the point-source model sees the turn (what "no glint lost" is measured against).
     flux : (F, T) float
-        Relative flux at the flux poses (0 where not visible with the wide strip).
+        Relative flux at the flux poses: 0 where the wire loses a glint the point model shows,
+        NaN where the point model shows none either (off the cap or the image: no LED helps).
     exact : (P, T) bool
         Visible on the mirror's own strip (``width_m``), occlusion tested.
     width_m : float
+    glints_px : (P, T, 2) float
+        The exact solve's glints.
     """
 
     led_local_m: np.ndarray
@@ -73,6 +76,7 @@ class LedScore:
     flux: np.ndarray
     exact: np.ndarray
     width_m: float
+    glints_px: np.ndarray
 
     def visible(self, width_m: float) -> np.ndarray:
         """(P, T) visible on a strip ``width_m`` wide: the exact solve at the mirror's width,
@@ -100,13 +104,16 @@ class LedScore:
 
     @property
     def flux_ratio(self) -> float:
-        """The worst flux pose's brightest over dimmest turn (inf where a turn is dark)."""
+        """The worst flux pose's brightest over dimmest turn, over the turns the point model
+        shows there (inf where one of them is dark)."""
         out = 0.0
         for f in self.flux:
-            lit = f[f > 0]
-            if lit.size < f.size:
+            f = f[np.isfinite(f)]
+            if not f.size:
+                continue
+            if (f <= 0).any():
                 return math.inf
-            out = max(out, float(lit.max() / lit.min()))
+            out = max(out, float(f.max() / f.min()))
         return out
 
 
@@ -156,8 +163,11 @@ def score_led(setup: Setup, mirror: WireMirror, pose, led_m, yaw, pitch, flux_ya
     _, flux = wire_glint_flux(setup.camera, wide, center, eye.cornea_radius_m, cornea_axis=axis,
                               cap_cos_min=eye.cap_cos_min, refractive_index=eye.refractive_index,
                               occlusion=False)
+    shown = eye.glints(setup.camera, real.wire_axes_m, flux_yaw, flux_pitch)[1]
+    flux = np.where(shown, flux, np.nan)
     return LedScore(np.asarray(led_m, float), w.visible, np.where(w.visible, w.axial_m, np.nan),
-                    np.asarray(reference, bool), flux, exact.visible, float(real.width_m))
+                    np.asarray(reference, bool), flux, exact.visible, float(real.width_m),
+                    exact.glints_px)
 
 
 def design_poses_wire(setup: Setup, grid=(8, 5), flux_grid=(3, 3)):
@@ -214,5 +224,41 @@ def trade_offs(scores: list, width_m: float, max_ratio: float = MAX_FLUX_RATIO) 
             "lost": lost, "ratios": ratio, "required_width_m": need}
 
 
-__all__ = ["MAX_FLUX_RATIO", "WIDE_STRIP_M", "LedScore", "wire_group", "led_position", "with_led",
+def run_strip(flux_row, max_ratio: float = MAX_FLUX_RATIO) -> tuple[int, int]:
+    """(first, stop) of the longest run of neighbouring turns whose brightness (``flux_row``
+    (T,) or (F, T): every row; NaN entries ignored, a zero ends the run) stays within
+    ``max_ratio``."""
+    f = np.atleast_2d(np.asarray(flux_row, float))
+    T = f.shape[1]
+    best = (0, 0)
+    for a in range(T):
+        for b in range(a + 1, T + 1):
+            seg = f[:, a:b]
+            if (seg <= 0).any():
+                break
+            lit = [row[np.isfinite(row)] for row in seg]
+            if any(x.size and x.max() / x.min() > max_ratio for x in lit):
+                break
+            if b - a > best[1] - best[0]:
+                best = (a, b)
+    return best
+
+
+def pair_score(a: LedScore, b: LedScore, width_m: float) -> dict:
+    """Two LEDs on one mirror: each turn then makes two glints. ``lost`` (share of the point
+    model's glints that neither keeps), ``both`` (share of kept (pose, turn) pairs where both
+    glints show) and ``separation_px`` (median distance between the two glints of a turn
+    where both show: closer than ~4 px they blend into one spot)."""
+    va, vb = a.visible(width_m), b.visible(width_m)
+    ref = a.reference
+    either = va | vb
+    both = va & vb
+    sep = np.linalg.norm(a.glints_px - b.glints_px, axis=-1)[both]
+    return {"lost": float((ref & ~either).sum() / max(ref.sum(), 1)),
+            "worst_turn": float(((ref & either).sum(0) / np.maximum(ref.sum(0), 1)).min()),
+            "both": float(both.sum() / max(either.sum(), 1)),
+            "separation_px": float(np.median(sep)) if sep.size else math.nan}
+
+
+__all__ = ["run_strip", "pair_score", "MAX_FLUX_RATIO", "WIDE_STRIP_M", "LedScore", "wire_group", "led_position", "with_led",
            "score_led", "design_poses_wire", "candidate_leds", "search_leds", "trade_offs"]
