@@ -32,7 +32,7 @@ import numpy as np
 
 from estimator.formats import atomic_file, atomic_write
 
-__all__ = ["MirrorParams", "wire_mirror", "turn_angles_rad", "turn_positions_local_m", "mirror_outline_mm",
+__all__ = ["MirrorParams", "DESIGNED", "wire_mirror", "turn_angles_rad", "turn_positions_local_m", "mirror_outline_mm",
            "turn_clearance_mm", "mirror_mesh", "light_list_toml", "wire_group_toml", "write_mirror"]
 
 
@@ -109,6 +109,15 @@ class MirrorParams:
         r_out = self.radius_mm + self.thickness_mm
         return (math.asin(min(self.lug_width_mm / r_out, 1.0))
                 + (self.wire_diameter_mm / 2 + self.clearance_mm) / r_out)
+
+
+#: The designed part (reports/wire_mirror.md, "Design"; scet_render.design.wire_report): the
+#: prototype's placement with a 3 mm strip, which keeps every turn's glint over the screen
+#: (2 mm loses 6.4 %), and the design rule's LED (the turns' mean corneal reflection point at
+#: primary gaze mirrored through the arc's plane, centred along its normal): ``scet hardware
+#: mirror --designed``.
+DESIGNED = MirrorParams(width_mm=3.0, led_position_m=(0.0030813078766464093, 0.03832935598462683,
+                                                      -0.025556115572069847))
 
 
 def _frame(p: MirrorParams):

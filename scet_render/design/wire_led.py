@@ -104,16 +104,14 @@ class LedScore:
 
     @property
     def flux_ratio(self) -> float:
-        """The worst flux pose's brightest over dimmest turn, over the turns the point model
-        shows there (inf where one of them is dark)."""
-        out = 0.0
+        """The worst flux pose's brightest over dimmest glint, over the turns whose glint shows
+        there (a glint lost is counted by :meth:`lost`, not here); NaN if none shows."""
+        out = math.nan
         for f in self.flux:
-            f = f[np.isfinite(f)]
-            if not f.size:
-                continue
-            if (f <= 0).any():
-                return math.inf
-            out = max(out, float(f.max() / f.min()))
+            f = f[np.isfinite(f) & (f > 0)]
+            if f.size:
+                r = float(f.max() / f.min())
+                out = r if math.isnan(out) else max(out, r)
         return out
 
 
@@ -213,6 +211,7 @@ def trade_offs(scores: list, width_m: float, max_ratio: float = MAX_FLUX_RATIO) 
     loses nothing, among those meeting the ratio; None if none)."""
     lost = np.array([s.lost(width_m) for s in scores])
     ratio = np.array([s.flux_ratio for s in scores])
+    ratio = np.where(np.isfinite(ratio), ratio, np.inf)
     need = np.array([s.required_width_m for s in scores])
     ok_ratio = ratio <= max_ratio
     both = np.flatnonzero((lost == 0) & ok_ratio)
@@ -226,7 +225,7 @@ def trade_offs(scores: list, width_m: float, max_ratio: float = MAX_FLUX_RATIO) 
 
 def run_strip(flux_row, max_ratio: float = MAX_FLUX_RATIO) -> tuple[int, int]:
     """(first, stop) of the longest run of neighbouring turns whose brightness (``flux_row``
-    (T,) or (F, T): every row; NaN entries ignored, a zero ends the run) stays within
+    (T,) or (F, T): every row; NaN and zero entries, glints not showing, ignored) stays within
     ``max_ratio``."""
     f = np.atleast_2d(np.asarray(flux_row, float))
     T = f.shape[1]
@@ -234,9 +233,7 @@ def run_strip(flux_row, max_ratio: float = MAX_FLUX_RATIO) -> tuple[int, int]:
     for a in range(T):
         for b in range(a + 1, T + 1):
             seg = f[:, a:b]
-            if (seg <= 0).any():
-                break
-            lit = [row[np.isfinite(row)] for row in seg]
+            lit = [row[np.isfinite(row) & (row > 0)] for row in seg]
             if any(x.size and x.max() / x.min() > max_ratio for x in lit):
                 break
             if b - a > best[1] - best[0]:

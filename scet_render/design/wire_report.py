@@ -12,18 +12,21 @@ Steps (glints by the two-bounce solver throughout, :mod:`.wire_led`):
 3. A second LED: the best partner of the best single LED (a turn's glint counts when either
    LED makes it; both make two glints of the same turn, their separation in px).
 4. The brightness: the longest run of neighbouring turns within :data:`~.wire_led.MAX_FLUX_RATIO`,
-   and the same mirror slid in its plane until its arc is centred over the eye (every turn
-   then as far from the eye), which is what the ratio needs.
+   and the same mirror slid in its plane, in steps (:data:`SLIDES`), toward the placement
+   whose arc is centred over the eye (every turn then as far from the eye), each with the
+   rule's LED: the ratio against the glints the cornea shows at all.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
+from estimator.formats import atomic_write
+from estimator.geometry.rigid import RigidPose
 from estimator.geometry.wire import eye_wire_glints
 from estimator.setup import LightGroup, Setup
 
@@ -32,6 +35,11 @@ from .wire import centred_led, mirrored_led
 from .wire_led import (MAX_FLUX_RATIO, design_poses_wire, pair_score, run_strip, search_leds,
                        trade_offs, wire_group, with_led)
 
+#: Fractions of the way to the eye-centred placement tried (:func:`recentred`).
+SLIDES = (0.0, 0.25, 0.5, 0.75, 1.0)
+#: The designed strip width (m): the narrowest of :data:`WIDTHS_M` that loses no glint with
+#: the design rule's LED on the prototype's mirror (reports/wire_mirror.md, "Design").
+DESIGN_WIDTH_M = 3.0e-3
 #: Strip widths (m) tried for the chosen LED.
 WIDTHS_M = (2.0e-3, 2.5e-3, 3.0e-3, 3.5e-3, 4.0e-3)
 
@@ -51,15 +59,37 @@ def lost_at_width(setup: Setup, mirror, pose, led_m, width_m: float, grid=(8, 5)
             float(((ref & vis).sum(0) / np.maximum(ref.sum(0), 1)).min()))
 
 
-def recentred(setup: Setup, mirror_world):
-    """The mirror (world frame) slid in its own plane so that its arc's centre sits over the
-    eye's rotation centre, its LED placed by the design rule (:mod:`.wire`)."""
+def recentred(setup: Setup, mirror_world, fraction: float = 1.0):
+    """The mirror (world frame) slid in its own plane by ``fraction`` of the way that puts its
+    arc's centre over the eye's rotation centre, its LED placed by the design rule
+    (:mod:`.wire`)."""
     n = mirror_world.normal
     c_e = setup.eye.rotation_center_m
     h = float((mirror_world.center_m - c_e) @ n)
-    m = replace(mirror_world, center_m=c_e + h * n)
+    target = c_e + h * n
+    m = replace(mirror_world, center_m=mirror_world.center_m + fraction * (target - mirror_world.center_m),
+                led_position_m=mirror_world.center_m)
     led = mirrored_led(setup, m.wire_axes_m, n, m.center_m)
     return centred_led(setup, with_led(m, led))
+
+
+def slid_score(setup: Setup, mirror_world, fraction: float, yaw, pitch, fy, fp) -> dict:
+    """The slid mirror (:func:`recentred`) scored: its :class:`~.wire_led.LedScore` and the
+    glints lost at each of :data:`WIDTHS_M` (exact solves)."""
+    from .region import Region, in_screen_view
+    from .wire_led import score_led
+
+    rec = recentred(setup, mirror_world, fraction)
+    rs = with_lights(setup, [LightGroup("slid", "wire_mirror", rec.wire_axes_m,
+                                        source_radius_m=rec.wire_radius_m, emitter=rec)])
+    identity = RigidPose()
+    score = score_led(rs, rec, identity, rec.led_position_m, yaw, pitch, fy, fp)
+    return {"fraction": fraction, "mirror": rec, "score": score,
+            "shift_mm": 1e3 * fraction * float(np.linalg.norm(
+                recentred(setup, mirror_world).center_m - mirror_world.center_m)),
+            "widths": {w: lost_at_width(rs, rec, identity, rec.led_position_m, w) for w in WIDTHS_M},
+            "in_view": int(in_screen_view(setup, Region(), np.vstack([rec.wire_axes_m, rec.led_position_m])).sum()),
+            "camera_mm": 1e3 * float(np.linalg.norm(rec.wire_axes_m - setup.camera.position_m, axis=1).min())}
 
 
 def led_design_study(setup: Setup, *, step_mm: float = 3.0, axial_step_mm: float = 1.0,
@@ -92,25 +122,12 @@ def led_design_study(setup: Setup, *, step_mm: float = 3.0, axial_step_mm: float
     pairs = [(j, pair_score(scores[best], scores[j], m.width_m)) for j in range(len(scores)) if j != best]
     j, pair = min(pairs, key=lambda x: (x[1]["lost"], -x[1]["separation_px"]))
     run = run_strip(scores[best].flux)
-    rec = recentred(setup, world)
-    rec_setup = with_lights(setup, [LightGroup("recentred", "wire_mirror", rec.wire_axes_m,
-                                               source_radius_m=rec.wire_radius_m, emitter=rec)])
     yaw, pitch, fy, fp = design_poses_wire(setup)
-    from .wire_led import score_led
-
-    identity = type(pose)()
-    rec_score = score_led(rec_setup, rec, identity, rec.led_position_m, yaw, pitch, fy, fp)
-    rec_widths = {w: lost_at_width(rec_setup, rec, identity, rec.led_position_m, w) for w in WIDTHS_M}
-    from .region import Region, in_screen_view
-
-    rec_view = int(in_screen_view(setup, Region(), np.vstack([rec.wire_axes_m, rec.led_position_m])).sum())
-    rec_cam_mm = 1e3 * float(np.linalg.norm(rec.wire_axes_m - setup.camera.position_m, axis=1).min())
-    return {"recentred_in_view": rec_view, "recentred_camera_mm": rec_cam_mm,
-            "scene": setup.name, "mirror": m, "pose": pose, "candidates": len(scores),
+    slides = [slid_score(setup, world, f, yaw, pitch, fy, fp) for f in SLIDES]
+    return {"scene": setup.name, "mirror": m, "pose": pose, "candidates": len(scores),
             "scores": scores, "trade": t, "best": best, "prototype": 0, "rule": 1,
             "widths": widths, "pair": (best, j), "pair_score": pair, "run": run,
-            "recentred": rec, "recentred_shift_mm": 1e3 * float(np.linalg.norm(rec.center_m - world.center_m)),
-            "recentred_score": rec_score, "recentred_widths": rec_widths,
+            "slides": slides,
             "seconds": time.perf_counter() - t0}
 
 
@@ -120,6 +137,22 @@ def _mm(p) -> str:
 
 def _pct(x) -> str:
     return f"{100 * x:.1f} %"
+
+
+def write_design_section(report_path, d: dict) -> Path:
+    """Replace (or append) the "## Design" section at the end of ``report_path``: the section
+    runs from its heading to the next "## " heading or the end."""
+    path = Path(report_path)
+    text = path.read_text(encoding="utf-8") if path.exists() else ""
+    new = design_section(d)
+    if "\n## Design\n" in text:
+        head, rest = text.split("\n## Design\n", 1)
+        nxt = rest.find("\n## ")
+        tail = rest[nxt:] if nxt >= 0 else ""
+        text = head.rstrip() + "\n\n" + new + tail
+    else:
+        text = text.rstrip() + "\n\n" + new
+    return atomic_write(path, text)
 
 
 def design_section(d: dict) -> str:
@@ -133,11 +166,14 @@ def design_section(d: dict) -> str:
         rows.append(f"| {label} | {_mm(s.led_local_m)} | {_pct(s.lost(w0))} | {_pct(s.worst_turn(w0))} | "
                     f"{1e3 * s.required_width_m:.2f} | {s.flux_ratio:.1f} |")
     widths = "".join(f"| {1e3 * w:.1f} mm | {_pct(lost)} | {_pct(worst)} |\n" for w, (lost, worst) in d["widths"].items())
-    rwidths = "".join(f"| {1e3 * w:.1f} mm | {_pct(lost)} | {_pct(worst)} |\n" for w, (lost, worst) in d["recentred_widths"].items())
+    slides = "".join(
+        f"| {100 * x['fraction']:.0f} % | {x['shift_mm']:.1f} | {_pct(x['score'].reference.mean())} | "
+        f"{_pct(x['widths'][2.0e-3][0])} | {_pct(x['widths'][3.0e-3][0])} | "
+        f"{1e3 * x['score'].required_width_m:.2f} | {x['score'].flux_ratio:.1f} | {x['in_view']} | "
+        f"{x['camera_mm']:.1f} |\n" for x in d["slides"])
     i, j = d["pair"]
     ps = d["pair_score"]
     a, b = d["run"]
-    rs = d["recentred_score"]
     both = d["trade"]["both"]
     return f"""## Design
 
@@ -179,22 +215,24 @@ target is turns {a}-{b - 1} ({b - a} of {m.turns}). The eye sits off the arc's a
 normal it is ~5 mm from the nearest turns and ~35 mm from the far end, and each glint's flux
 falls with the turn's distance from the eye and from the LED (the thin wire's demagnification);
 no LED position evens that out (the smallest ratio of all candidates:
-{sc[d['trade']['ratio']].flux_ratio:.1f}x). Sliding the same mirror {d['recentred_shift_mm']:.1f} mm in its plane until
-the arc's centre sits over the eye's rotation centre (every turn then as far from the eye; LED by
-the same rule at {_mm(d['recentred'].led_position_m)} world) gives a ratio of {rs.flux_ratio:.1f}x
-(the point model shows {_pct(rs.reference.mean())} of its (pose, turn) glints, the prototype's
-placement {_pct(sc[0].reference.mean())}),
-{_pct(rs.lost(w0))} lost on the 2 mm strip (worst turn {_pct(rs.worst_turn(w0))}), strip width
-keeping all ~{1e3 * rs.required_width_m:.2f} mm (no occlusion); exact solves:
+{sc[d['trade']['ratio']].flux_ratio:.1f}x). Sliding the same mirror in its plane toward the placement
+whose arc is centred over the eye's rotation centre (every turn then as far from the eye), the
+LED placed by the same rule each time:
 
-| strip width | lost | worst turn kept |
-|---|---:|---:|
-{rwidths}
-The re-centred mirror puts {d['recentred_in_view']} of its {m.turns} turns and LED in the eye's view of the
-screen (2 deg margin, `design.region.in_screen_view`); its nearest turn is
-{d['recentred_camera_mm']:.1f} mm from the camera's centre (whether the strip hides the camera's view of
-the eye is not checked here).
+| slid | shift mm | point model shows | lost on 2 mm | lost on 3 mm | strip keeping all, mm | brightness ratio | turns + LED in the screen view | nearest turn to the camera, mm |
+|---:|---:|---:|---:|---:|---:|---:|---:|---:|
+{slides}
+The eye-centred mirror evens the brightness (a glint's flux then falls only with the gaze's
+angle across the arc) but the cornea shows far fewer of its glints: the trade-off is between the
+ratio and the share of the screen over which a turn shows at all, which the point model's own
+coverage (the third column) bounds before any LED is placed.
+
+**The designed part** (`scet hardware mirror --designed`, `hardware/mirror.py` `DESIGNED`):
+the prototype's placement, a {1e3 * DESIGN_WIDTH_M:g} mm strip and the design rule's LED: no glint
+lost over the screen, brightness {sc[d['rule']].flux_ratio:.1f}x (the placement's limit above); the
+STL's notches and the written `wire_mirror` group come from one `WireMirror`.
 """
 
 
-__all__ = ["led_design_study", "design_section", "lost_at_width", "recentred", "WIDTHS_M"]
+__all__ = ["led_design_study", "design_section", "write_design_section", "lost_at_width", "recentred", "slid_score",
+           "WIDTHS_M", "SLIDES", "DESIGN_WIDTH_M"]

@@ -152,3 +152,57 @@ def test_brightness_ratio_is_the_solvers_flux(wire_scene):
     a, b = run_strip(sc.flux)
     seg = sc.flux[0, a:b]
     assert seg.max() / seg.min() <= 4.0 and 0 < b - a < m.turns
+
+
+def test_designed_part_has_the_rules_led(wire_scene):
+    """hardware/mirror.py's DESIGNED LED is the design rule's on the prototype's mirror (the
+    printed part and the scene group it writes match the design)."""
+    from hardware.mirror import DESIGNED
+
+    _, m, pose = wire_group(wire_scene)
+    world = m.posed(pose)
+    rule = centred_led(wire_scene, with_led(world, mirrored_led(wire_scene, world.wire_axes_m,
+                                                                world.normal, world.center_m)))
+    np.testing.assert_allclose(pose.inverse().apply(rule.led_position_m), DESIGNED.led_position_m,
+                               atol=1e-6)  # 1 um: far below the LED's own 0.5 mm
+
+
+#: The rendered LED's diameter (mm) in the render check: a 0.5 mm LED's glint through a 0.8 mm
+#: wire is a line ~0.01 px wide that a few spp rarely hit (tests/scet_render/test_wire_render.py);
+#: 2 mm (a 5 mm lensed LED's apparent emitter) lights every labelled glint at 16 spp.
+RENDER_LED_MM = 2.0
+#: A labelled glint counts as rendered when the 5 x 5 pixels round its label peak this far
+#: above the frame's median (DN, 10-bit): measured 41-120 DN above at 16 spp, conductor cornea.
+GLINT_ABOVE_DN = 20.0
+
+
+@pytest.mark.slow  # ~30-60 s on 2 busy cores
+def test_scet_render_renders_the_designed_scene(proto, designed, tmp_path):
+    """`scet render` one frame of the designed wire scene: every glint the two-bounce labels call
+    visible (rows the band lights fully) is bright within 2 px of its label."""
+    pytest.importorskip("mitsuba")
+    import json
+
+    import cv2
+
+    from scet_render.cli import main
+
+    text = designed_scene_text(proto, designed, "wire_designed")
+    text = text.replace("led_diameter_mm = 0.5\n", f"led_diameter_mm = {RENDER_LED_MM}\n")
+    scene = tmp_path / "wire_designed.toml"
+    scene.write_text(text)
+    out = tmp_path / "render"
+    assert main(["render", str(scene), "--frames", "1", "--spp", "16", "--cornea", "conductor",
+                 "--out", str(out)]) == 0
+    img = cv2.imread(str(out / "frames" / "000000.png"), cv2.IMREAD_UNCHANGED).astype(float)
+    bg = float(np.median(img))
+    peaks = []
+    for line in (out / "labels.jsonl").read_text().splitlines():
+        lab = json.loads(line)
+        a, b = lab["full_rows"]
+        for (x, y), vis in zip(lab["glints_px"], lab["glints_visible"]):
+            if vis and a + 2 <= y <= b - 2:
+                xi, yi = int(round(x)), int(round(y))
+                peaks.append(img[yi - 2:yi + 3, xi - 2:xi + 3].max() - bg)
+    assert len(peaks) >= 3
+    assert min(peaks) > GLINT_ABOVE_DN
