@@ -36,7 +36,7 @@ from .wire_led import (MAX_FLUX_RATIO, design_poses_wire, pair_score, run_strip,
                        trade_offs, wire_group, with_led)
 
 #: Fractions of the way to the eye-centred placement tried (:func:`recentred`).
-SLIDES = (0.0, 0.25, 0.5, 0.75, 1.0)
+SLIDES = (0.0, 0.25, 0.5, 0.6, 0.75, 1.0)
 #: The designed strip width (m): the narrowest of :data:`WIDTHS_M` that loses no glint with
 #: the design rule's LED on the prototype's mirror (reports/wire_mirror.md, "Design").
 DESIGN_WIDTH_M = 3.0e-3
