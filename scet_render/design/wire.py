@@ -55,16 +55,16 @@ def mirrored_led(setup: Setup, lights_m, normal, plane_point_m) -> np.ndarray:
     return c - 2.0 * float((c - np.asarray(plane_point_m, float)) @ n) * n
 
 
-def centred_led(setup: Setup, mirror: WireMirror, *, grid=(3, 3), rounds: int = 2) -> WireMirror:
+def centred_led(setup: Setup, mirror: WireMirror, *, grid=(3, 3), rounds: int = 3) -> WireMirror:
     """The mirror (world frame) with its LED moved along the arc's normal so that the turns'
-    highlights over the ``grid`` of screen targets centre on mid-width: along the axis the
-    highlight moves by D_X / (D_L + D_X) ~ 1/2 of the LED's move (Eq. (A)), so each round moves
-    the LED by -2 x the mean over turns of the middle of each turn's highlight range (solved on
-    a strip :data:`~.wire_led.WIDE_STRIP_M` wide, without occlusion, so that no highlight is
-    cut off)."""
+    highlights over the ``grid`` of screen targets (edge to edge) centre on mid-width: along the
+    axis the highlight moves by D_X / (D_L + D_X) ~ 1/2 of the LED's move (Eq. (A)), so each
+    round moves the LED by -2 x the middle of the range of all the turns' highlights (the
+    narrowest strip that holds them all is then centred), solved on a strip
+    :data:`~.wire_led.WIDE_STRIP_M` wide without occlusion, so that no highlight is cut off."""
     from .wire_led import WIDE_STRIP_M
 
-    yaw, pitch = setup.eye.angles_toward(setup.screen.grid(*grid))
+    yaw, pitch = setup.eye.angles_toward(setup.screen.grid(*grid, margin=0.0))
     m = mirror
     for _ in range(rounds):
         wide = replace(m, width_m=max(WIDE_STRIP_M, m.width_m))
@@ -73,8 +73,8 @@ def centred_led(setup: Setup, mirror: WireMirror, *, grid=(3, 3), rounds: int = 
         seen = np.isfinite(s).any(0)
         if not seen.any():
             break
-        mid = 0.5 * (np.nanmax(s[:, seen], 0) + np.nanmin(s[:, seen], 0))
-        m = replace(m, led_position_m=m.led_position_m - 2.0 * float(mid.mean()) * m.normal)
+        mid = 0.5 * (np.nanmax(s[:, seen]) + np.nanmin(s[:, seen]))
+        m = replace(m, led_position_m=m.led_position_m - 2.0 * float(mid) * m.normal)
     mid_turn = m.wire_axes_m[m.turns // 2]
     return replace(m, led_aim=(mid_turn - m.led_position_m) / np.linalg.norm(mid_turn - m.led_position_m))
 

@@ -169,9 +169,11 @@ def score_led(setup: Setup, mirror: WireMirror, pose, led_m, yaw, pitch, flux_ya
 
 
 def design_poses_wire(setup: Setup, grid=(8, 5), flux_grid=(3, 3)):
-    """(yaw, pitch) over the ``grid`` of screen targets and over the ``flux_grid``."""
-    yaw, pitch = setup.eye.angles_toward(setup.screen.grid(*grid))
-    fy, fp = setup.eye.angles_toward(setup.screen.grid(*flux_grid))
+    """(yaw, pitch) over the ``grid`` of screen targets and over the ``flux_grid``, edge to
+    edge (``margin = 0``: the cornea's travel's extremes, beyond the 24 x 15 grid's cell
+    centres)."""
+    yaw, pitch = setup.eye.angles_toward(setup.screen.grid(*grid, margin=0.0))
+    fy, fp = setup.eye.angles_toward(setup.screen.grid(*flux_grid, margin=0.0))
     return yaw, pitch, fy, fp
 
 
