@@ -9,10 +9,10 @@ plane, of the turns' mean reflection point on the cornea at primary gaze: along 
 mirror (:mod:`estimator.geometry.wire`, Eq. (A)), so an LED there puts every turn's highlight
 near mid-width when the eye looks straight ahead, and the highlights then follow the cornea by
 half its travel along the axis (:mod:`.wire_led`); :func:`centred_led` then moves it along the
-arc's normal until the highlights' ranges over the screen centre on the strip (on the
-prototype's mirror: 6.4 % of the point model's glints lost on its 2 mm strip against 54.8 %
-before centring and 11.2 % with the prototype scene's LED). The LED aims at the arc's middle
-turn.
+arc's normal until the highlights' range over the screen centres on the strip (on the
+prototype's mirror, 8 x 5 targets edge to edge: 11.1 % of the point model's glints lost on its
+2 mm strip, none on 3 mm, against 54.8 % before centring and 13.7 % with the prototype scene's
+LED; reports/wire_mirror.md, "Design"). The LED aims at the arc's middle turn.
 
 The search scores such layouts by the two-bounce glints (:func:`wire_layout_glints`); a layout
 whose LED is not admissible (outside the region or in the eye's view of the screen) or whose

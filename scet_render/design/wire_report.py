@@ -48,10 +48,15 @@ def _local(pose, p):
     return pose.inverse().apply(np.asarray(p, float))
 
 
-def lost_at_width(setup: Setup, mirror, pose, led_m, width_m: float, grid=(8, 5)) -> tuple[float, float]:
+def lost_at_width(setup: Setup, mirror, pose, led_m, width_m: float, grid=(8, 5), *,
+                  paper: bool = False) -> tuple[float, float]:
     """(lost share, worst turn's kept share) of the point model's glints, exact solve at
-    ``width_m`` with the LED at ``led_m`` (local frame)."""
-    yaw, pitch, _, _ = design_poses_wire(setup, grid)
+    ``width_m`` with the LED at ``led_m`` (local frame), over the ``grid`` edge to edge (or,
+    ``paper``, its cell centres: the paper's 24 x 15 accuracy grid)."""
+    if paper:
+        yaw, pitch = setup.eye.angles_toward(setup.screen.grid(*grid))
+    else:
+        yaw, pitch, _, _ = design_poses_wire(setup, grid)
     real = with_led(mirror, led_m, width_m=width_m).posed(pose)
     vis = eye_wire_glints(setup.eye, setup.camera, real, yaw, pitch).visible
     ref = setup.eye.glints(setup.camera, real.wire_axes_m, yaw, pitch)[1]
@@ -122,12 +127,14 @@ def led_design_study(setup: Setup, *, step_mm: float = 3.0, axial_step_mm: float
     pairs = [(j, pair_score(scores[best], scores[j], m.width_m)) for j in range(len(scores)) if j != best]
     j, pair = min(pairs, key=lambda x: (x[1]["lost"], -x[1]["separation_px"]))
     run = run_strip(scores[best].flux)
+    paper = {w: lost_at_width(setup, m, pose, scores[1].led_local_m, w, (24, 15), paper=True)
+             for w in (m.width_m, DESIGN_WIDTH_M)}
     yaw, pitch, fy, fp = design_poses_wire(setup)
     slides = [slid_score(setup, world, f, yaw, pitch, fy, fp) for f in SLIDES]
     return {"scene": setup.name, "mirror": m, "pose": pose, "candidates": len(scores),
             "scores": scores, "trade": t, "best": best, "prototype": 0, "rule": 1,
             "widths": widths, "pair": (best, j), "pair_score": pair, "run": run,
-            "slides": slides,
+            "slides": slides, "paper": paper,
             "seconds": time.perf_counter() - t0}
 
 
@@ -181,9 +188,9 @@ Where to put the LED so that no glint is lost over the screen and every turn's b
 within {MAX_FLUX_RATIO:g}x (two stops: with the brightest glint just under the 10-bit full scale the
 dimmest still peaks near 250 DN); `scet design-lights prototype_ov5647_wire --wire-led`
 (`scet_render/design/wire_report.py`, {d['seconds']:.0f} s). Glints by the two-bounce solver
-over an 8 x 5 grid of gaze targets, "lost" against the glints the point-source model shows;
-brightness = relative flux (`wire_glint_flux`) at 3 x 3 targets, brightest over dimmest turn at
-the worst target. {d['candidates']} LED positions (group frame, aimed at the middle turn): the
+over an 8 x 5 grid of gaze targets spanning the screen edge to edge, "lost" against the glints
+the point-source model shows; brightness = relative flux (`wire_glint_flux`) at 3 x 3 targets
+edge to edge, brightest over dimmest turn at the worst target. {d['candidates']} LED positions (group frame, aimed at the middle turn): the
 prototype scene's, the design rule's (the turns' mean reflection point on the cornea mirrored
 through the arc's plane, then moved along the normal until the highlights' ranges centre on the
 strip: along a turn the wire is a plane mirror, the highlight follows the cornea by
@@ -193,7 +200,7 @@ D_L / (D_L + D_X) ~ 1/2 of its travel) and a grid about it (+-6 mm across, +-2 m
 |---|---|---:|---:|---:|---:|
 {chr(10).join(rows)}
 
-{"No LED position meets both targets on this mirror." if both is None else f"LED {_mm(sc[both].led_local_m)} meets both."}
+{"No LED position meets both targets on this mirror (its placement, its 2 mm strip)." if both is None else f"LED {_mm(sc[both].led_local_m)} meets both."}
 
 **Lost glints: the strip's width binds.** The cornea's travel over the screen moves each
 turn's highlight ~2-3 mm along its wire whatever the LED's position (the LED's axial position
@@ -228,9 +235,15 @@ ratio and the share of the screen over which a turn shows at all, which the poin
 coverage (the third column) bounds before any LED is placed.
 
 **The designed part** (`scet hardware mirror --designed`, `hardware/mirror.py` `DESIGNED`):
-the prototype's placement, a {1e3 * DESIGN_WIDTH_M:g} mm strip and the design rule's LED: no glint
-lost over the screen, brightness {sc[d['rule']].flux_ratio:.1f}x (the placement's limit above); the
-STL's notches and the written `wire_mirror` group come from one `WireMirror`.
+the prototype's placement, a {1e3 * DESIGN_WIDTH_M:g} mm strip and the design rule's LED. Over the
+paper's 24 x 15 grid (exact solves) it loses {_pct(d['paper'][DESIGN_WIDTH_M][0])} of the point model's
+glints (worst turn keeps {_pct(d['paper'][DESIGN_WIDTH_M][1])}; the same LED on the {1e3 * w0:g} mm strip:
+{_pct(d['paper'][w0][0])}, worst turn {_pct(d['paper'][w0][1])}); brightness {sc[d['rule']].flux_ratio:.1f}x, the
+placement's limit above. The STL's notches and the written `wire_mirror` group come from one
+`WireMirror` (`hardware.mirror.wire_mirror`; tests/hardware/test_mirror_design.py holds the
+turns in the notches to 1e-6 mm). To meet the {MAX_FLUX_RATIO:g}x target too, the mirror must move
+~60 % of the way toward the eye-centred placement (table above), giving up the glints the
+cornea then no longer shows; a second LED is not the lever (two spots per turn).
 """
 
 
