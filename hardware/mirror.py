@@ -17,6 +17,11 @@ highlight). What the part must let the winding do:
   wire) holds the turn where the light list says it is; the inner face, where the glints are,
   stays smooth.
 
+The turns' positions, the notches' angles and the written ``wire_mirror`` scene group all
+come from one :class:`~estimator.geometry.wire_model.WireMirror` (:func:`wire_mirror`), with
+either winding (``end_to_end``, ``mid_cell``); :data:`DESIGNED` is the part the LED study chose
+(reports/wire_mirror.md, "Design": a 3 mm strip and its LED).
+
 The part is one outline in the arc plane extruded by the width, so the mesh is closed by
 construction (checked with trimesh); :func:`turn_clearance_mm` measures from the outline
 itself how much room each turn has.
