@@ -118,12 +118,22 @@ def cmd_hardware(args) -> int:
     if args.action == "board":
         return _board(args)
     if args.action == "mirror":
-        from .mirror import MirrorParams, write_mirror
+        from dataclasses import replace
 
-        p = MirrorParams(radius_mm=args.radius_mm, span_deg=args.span_deg, width_mm=args.width_mm,
-                         thickness_mm=args.thickness_mm, turns=args.turns,
-                         wire_diameter_mm=args.wire_mm)
-        out = write_mirror(args.out or Path("out/mirror"), p)
+        from .mirror import DESIGNED, MirrorParams, write_mirror
+
+        base = DESIGNED if args.designed else MirrorParams()
+        p = replace(base, radius_mm=args.radius_mm, span_deg=args.span_deg,
+                    width_mm=base.width_mm if args.width_mm is None else args.width_mm,
+                    thickness_mm=args.thickness_mm, turns=args.turns, wire_diameter_mm=args.wire_mm,
+                    winding=args.winding,
+                    led_position_m=base.led_position_m if args.led_mm is None
+                    else tuple(1e-3 * x for x in args.led_mm))
+        try:
+            out = write_mirror(args.out or Path("out/mirror"), p)
+        except ValueError as exc:
+            print(f"scet hardware mirror: {exc}", file=sys.stderr)
+            return 2
         print(f"mirror written to {out['stl']} ({out['volume_mm3']:.0f} mm^3, watertight); "
               f"{p.turns} glint sources to {out['lights']}; the wire_mirror group (strip, wire, "
               f"LED) to {out['wire_lights']}")
@@ -250,7 +260,14 @@ def register(sub) -> None:
                                             "out/board)")
     p.add_argument("--radius-mm", type=finite(1.0, 1000.0), default=33.0)
     p.add_argument("--span-deg", type=finite(1.0, 360.0), default=90.0)
-    p.add_argument("--width-mm", type=finite(0.01, 100.0), default=2.0)
+    p.add_argument("--width-mm", type=finite(0.01, 100.0),
+                   help="mirror: strip width (default 2, or 3 with --designed)")
+    p.add_argument("--designed", action="store_true",
+                   help="mirror: the designed part (reports/wire_mirror.md, Design): 3 mm strip, its LED")
+    p.add_argument("--winding", choices=("end_to_end", "mid_cell"), default="end_to_end",
+                   help="mirror: turns at both ends of the span, or in the middle of equal cells")
+    p.add_argument("--led-mm", type=finite(-1000.0, 1000.0), nargs=3, metavar=("X", "Y", "Z"),
+                   help="mirror: the LED in the group's frame (default the prototype scene's)")
     p.add_argument("--thickness-mm", type=finite(0.01, 100.0), default=1.5)
     p.add_argument("--turns", type=integer(1, 10_000), default=35)
     p.add_argument("--wire-mm", type=finite(0.01, 100.0), default=0.8)

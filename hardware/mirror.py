@@ -17,6 +17,11 @@ highlight). What the part must let the winding do:
   wire) holds the turn where the light list says it is; the inner face, where the glints are,
   stays smooth.
 
+The turns' positions, the notches' angles and the written ``wire_mirror`` scene group all
+come from one :class:`~estimator.geometry.wire_model.WireMirror` (:func:`wire_mirror`), with
+either winding (``end_to_end``, ``mid_cell``); :data:`DESIGNED` is the part the LED study chose
+(reports/wire_mirror.md, "Design": a 3 mm strip and its LED).
+
 The part is one outline in the arc plane extruded by the width, so the mesh is closed by
 construction (checked with trimesh); :func:`turn_clearance_mm` measures from the outline
 itself how much room each turn has.
@@ -32,8 +37,20 @@ import numpy as np
 
 from estimator.formats import atomic_file, atomic_write
 
-__all__ = ["MirrorParams", "turn_angles_rad", "turn_positions_local_m", "mirror_outline_mm",
+__all__ = ["MirrorParams", "DESIGNED", "wire_mirror", "turn_angles_rad", "turn_positions_local_m", "mirror_outline_mm",
            "turn_clearance_mm", "mirror_mesh", "light_list_toml", "wire_group_toml", "write_mirror"]
+
+
+#: The prototype scene's pose of the mirror group (scenes/prototype_ov5647.toml).
+PROTOTYPE_POSE = {"pivot_m": [-0.010, 0.020, -0.015], "rotation_axis": [1.0, 0.0, 0.0],
+                  "rotation_deg": -45.0}
+#: The LED of scenes/prototype_ov5647_wire.toml (the group's local frame): the best single LED
+#: position of ``scet study wire --design`` under :data:`PROTOTYPE_POSE` (reports/wire_mirror.md).
+PROTOTYPE_LED_M = (0.0024, 0.04, -0.0265226)
+#: The LED's half-intensity angle (deg): an 850 nm part with a cos^1 lobe, e.g. Vishay
+#: VSMY1850 (datasheet 83397, ±60 deg); the paper's Osram part is not named.
+PROTOTYPE_LED_HALF_ANGLE_DEG = 60.0
+
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,6 +74,14 @@ class MirrorParams:
     first_m: tuple = (-0.010, 0.020, -0.015)
     center_direction: tuple = (0.0, 0.0, -1.0)
     normal: tuple = (0.0, 1.0, 0.0)
+    #: ``"end_to_end"`` (a turn at each end of the span) or ``"mid_cell"`` (the span split
+    #: into ``turns`` cells, a turn in the middle of each): the scene format's ``winding``.
+    winding: str = "end_to_end"
+    #: The LED (m, the group's local frame, as the arc's keys) and its beam: the scene
+    #: group's ``led_position_m``, ``led_half_angle_deg``, ``led_diameter_mm``.
+    led_position_m: tuple = PROTOTYPE_LED_M
+    led_half_angle_deg: float = PROTOTYPE_LED_HALF_ANGLE_DEG
+    led_diameter_mm: float = 0.5
 
     def check(self) -> None:
         for name in ("radius_mm", "span_deg", "width_mm", "thickness_mm", "wire_diameter_mm",
@@ -78,6 +103,9 @@ class MirrorParams:
                              f"the arc (pitch {pitch:.3f} mm)")
         if self.lug_width_mm >= self.radius_mm + self.thickness_mm:
             raise ValueError("mirror parameter lug_width_mm is wider than the arc's radius")
+        if self.winding not in ("end_to_end", "mid_cell"):
+            raise ValueError(f"mirror parameter winding must be 'end_to_end' or 'mid_cell', got "
+                             f"{self.winding!r}")
 
     @property
     def end_angle_rad(self) -> float:
@@ -86,6 +114,16 @@ class MirrorParams:
         r_out = self.radius_mm + self.thickness_mm
         return (math.asin(min(self.lug_width_mm / r_out, 1.0))
                 + (self.wire_diameter_mm / 2 + self.clearance_mm) / r_out)
+
+
+#: The designed part (reports/wire_mirror.md, "Design"; scet_render.design.wire_report): the
+#: prototype's placement with a 3 mm strip and the design rule's LED (the turns' mean corneal
+#: reflection point at primary gaze mirrored through the arc's plane, moved along its normal
+#: until all highlights over the screen, edge to edge, centre on the strip: they span +-1.35 mm).
+#: Over the paper's 24 x 15 grid it loses none of the 12,600 glints the point model shows (2 mm:
+#: 7.9 %, 2.5 mm: 1.0 %). ``scet hardware mirror --designed``.
+DESIGNED = MirrorParams(width_mm=3.0, led_position_m=(0.0030813078766464093, 0.037950675466686845,
+                                                      -0.025556115572069847))
 
 
 def _frame(p: MirrorParams):
@@ -98,22 +136,43 @@ def _frame(p: MirrorParams):
     return u, np.cross(n, u), n
 
 
+def wire_mirror(p: MirrorParams = MirrorParams(), *, led: bool = True):
+    """The :class:`~estimator.geometry.wire_model.WireMirror` the scene group of these
+    parameters describes (group's local frame, before its pose): the one source of the turns'
+    positions, so the notches of the printed part (:func:`mirror_outline_mm`) sit where the
+    written group's turns are. ``led=False`` puts the LED at the arc's centre (for the
+    geometry alone, whatever the LED). Raises ``ValueError`` naming the parameter at fault."""
+    from estimator.geometry.wire_model import LedBeam, WireMirror
+
+    p.check()
+    u, v, n = _frame(p)
+    center = np.asarray(p.first_m, float) + p.radius_mm * 1e-3 * (-u)
+    span = math.radians(p.span_deg)
+    led = np.asarray(p.led_position_m, float) if led else center
+    try:
+        # Aim: the scene format's default, the middle of the arc's wire.
+        mid = center + (p.radius_mm - p.wire_diameter_mm / 2) * 1e-3 * (
+            math.cos(span / 2) * u + math.sin(span / 2) * v)
+        aim = (mid - led) / np.linalg.norm(mid - led)
+        return WireMirror(center, u, v, n, p.radius_mm * 1e-3, span, p.width_mm * 1e-3,
+                          p.thickness_mm * 1e-3, p.turns, p.wire_diameter_mm * 1e-3, led, aim,
+                          LedBeam.cos_power(math.radians(p.led_half_angle_deg)),
+                          p.led_diameter_mm * 1e-3, p.winding)
+    except ValueError as exc:  # WireGeometryError names the scene key
+        raise ValueError(f"mirror parameter {getattr(exc, 'key', '')}: {exc}") from None
+
+
 def turn_angles_rad(p: MirrorParams = MirrorParams()) -> np.ndarray:
-    """(turns,) angle of each turn on the arc, 0 at the first, ``span_deg`` at the last."""
-    return math.radians(p.span_deg) * np.arange(p.turns) / max(p.turns - 1, 1)
+    """(turns,) angle of each turn on the arc from the first turn's end of the span: 0 to
+    ``span_deg`` end to end, or the cells' middles (``winding``); the notches' angles."""
+    return np.asarray(wire_mirror(p, led=False).turn_angles_rad)
 
 
 def turn_positions_local_m(p: MirrorParams = MirrorParams()) -> np.ndarray:
     """(turns, 3) glint-source positions (m) in the scene frame before the group's pose:
     on the arc of the scene's ``arc`` group with the same ``first_m``, ``center_direction``
-    and ``normal``, at radius R - d/2."""
-    p.check()
-    u, v, _ = _frame(p)
-    r = p.radius_mm * 1e-3
-    center = np.asarray(p.first_m, float) + r * (-u)
-    a = turn_angles_rad(p)
-    rho = (p.radius_mm - p.wire_diameter_mm / 2) * 1e-3
-    return center + rho * (np.cos(a)[:, None] * u + np.sin(a)[:, None] * v)
+    and ``normal``, at radius R - d/2 (the turns' axes of :func:`wire_mirror`)."""
+    return np.asarray(wire_mirror(p, led=False).wire_axes_m)
 
 
 def _polar(r, a):
@@ -280,38 +339,24 @@ def light_list_toml(p: MirrorParams = MirrorParams(), pose: dict | None = None) 
     return "\n".join(lines) + "\n"
 
 
-#: The prototype scene's pose of the mirror group (scenes/prototype_ov5647.toml).
-PROTOTYPE_POSE = {"pivot_m": [-0.010, 0.020, -0.015], "rotation_axis": [1.0, 0.0, 0.0],
-                  "rotation_deg": -45.0}
-#: The LED of scenes/prototype_ov5647_wire.toml (the group's local frame): the best single LED
-#: position of ``scet study wire --design`` under :data:`PROTOTYPE_POSE` (reports/wire_mirror.md).
-PROTOTYPE_LED_M = (0.0024, 0.04, -0.0265226)
-#: The LED's half-intensity angle (deg): an 850 nm part with a cos^1 lobe, e.g. Vishay
-#: VSMY1850 (datasheet 83397, ±60 deg); the paper's Osram part is not named.
-PROTOTYPE_LED_HALF_ANGLE_DEG = 60.0
-
-
-def wire_group_toml(p: MirrorParams = MirrorParams(), pose: dict | None = None, *,
-                    led_position_m=PROTOTYPE_LED_M,
-                    led_half_angle_deg: float = PROTOTYPE_LED_HALF_ANGLE_DEG,
-                    led_diameter_mm: float = 0.5) -> str:
+def wire_group_toml(p: MirrorParams = MirrorParams(), pose: dict | None = None) -> str:
     """A ``[[lights]]`` group of ``kind = "wire_mirror"`` (the scene format): the same mirror
-    as :func:`light_list_toml`'s turns, with its strip, wire and one LED
-    (``estimator.scene_wire``)."""
-    p.check()
+    as :func:`light_list_toml`'s turns and the STL's notches, with its strip, wire and LED
+    (``estimator.scene_wire``; checked by building it, :func:`wire_mirror`)."""
+    wire_mirror(p)
     lines = [f"# {p.turns} turns of {p.wire_diameter_mm:g} mm wire on a {p.span_deg:g} deg arc of "
              f"radius {p.radius_mm:g} mm, lit by one LED: scet hardware mirror",
              "[[lights]]", 'name = "wire_mirror"', 'kind = "wire_mirror"',
-             f"radius_mm = {p.radius_mm!r}", f"span_deg = {p.span_deg!r}",
+             f"radius_mm = {float(p.radius_mm)!r}", f"span_deg = {float(p.span_deg)!r}",
              f"first_m = {[float(x) for x in p.first_m]}",
              f"center_direction = {[float(x) for x in p.center_direction]}",
              f"normal = {[float(x) for x in p.normal]}",
-             f"strip_width_mm = {p.width_mm!r}", f"strip_thickness_mm = {p.thickness_mm!r}",
-             f"turns = {p.turns}", f"wire_diameter_mm = {p.wire_diameter_mm!r}",
-             'winding = "end_to_end"',
-             f"led_position_m = {[float(x) for x in led_position_m]}",
-             f"led_half_angle_deg = {float(led_half_angle_deg)!r}",
-             f"led_diameter_mm = {float(led_diameter_mm)!r}"]
+             f"strip_width_mm = {float(p.width_mm)!r}", f"strip_thickness_mm = {float(p.thickness_mm)!r}",
+             f"turns = {p.turns}", f"wire_diameter_mm = {float(p.wire_diameter_mm)!r}",
+             f'winding = "{p.winding}"',
+             f"led_position_m = {[float(x) for x in p.led_position_m]}",
+             f"led_half_angle_deg = {float(p.led_half_angle_deg)!r}",
+             f"led_diameter_mm = {float(p.led_diameter_mm)!r}"]
     if pose:
         lines.append("[lights.pose]")
         for k, v in pose.items():

@@ -41,8 +41,10 @@ def cmd_design_lights(args) -> int:
     from scet_render.design import Budget, Region, SearchSettings, design_lights, write_design
 
     setup = load_scene(args.scene)
+    if args.wire_led:
+        return _wire_led(setup, args)
     budget = Budget(lights=args.lights, arcs=args.arcs, free=0 if args.style == "wire" else args.free,
-                    style=args.style)
+                    style=args.style, strip_width_m=args.strip_width_mm * 1e-3)
     region = Region(min_eye_distance_m=args.min_eye_distance_mm * 1e-3,
                     max_eye_distance_m=args.max_eye_distance_mm * 1e-3,
                     max_z_m=args.max_z_mm * 1e-3, screen_margin_deg=args.screen_margin_deg,
@@ -68,6 +70,23 @@ def cmd_design_lights(args) -> int:
     if extra:
         print(extra.strip().splitlines()[-1])
     print(f"{result.lights} lights; scene written to {scene_path}, report to {report}")
+    return 0
+
+
+def _wire_led(setup, args) -> int:
+    """``--wire-led``: the wire mirror's LED study; its section in ``--wire-report``."""
+    from scet_render.design.wire_report import led_design_study, write_design_section
+
+    bar, update = progress_bar(0, "pos", "LED positions")
+    try:
+        d = led_design_study(setup, progress=update)
+    finally:
+        bar.close()
+    path = write_design_section(args.wire_report, d)
+    s = d["scores"][d["rule"]]
+    print(f"LED by the design rule: {100 * s.lost(d['mirror'].width_m):.1f} % of glints lost on the "
+          f"{1e3 * d['mirror'].width_m:g} mm strip, {1e3 * s.required_width_m:.2f} mm keeps all, "
+          f"brightness ratio {s.flux_ratio:.1f}; section 'Design' written to {path}")
     return 0
 
 
@@ -201,7 +220,13 @@ def add_parsers(sub) -> None:
     p.add_argument("--free", type=integer(0, 10_000), default=16,
                    help="lights of the budget kept for free positions (default 16; 0 in wire style)")
     p.add_argument("--style", choices=("free", "wire"), default="free",
-                   help="wire: arcs of 0.8 mm turns only, as the prototype's wound mirror")
+                   help="wire: each arc a wire_mirror (0.8 mm turns, one LED), as the prototype's wound mirror")
+    p.add_argument("--strip-width-mm", type=finite(0.8, 50.0), default=2.0,
+                   help="wire style: the strips' width (default 2, the prototype's)")
+    p.add_argument("--wire-led", action="store_true",
+                   help="instead: where to put the LED of the scene's wire_mirror (the Design "
+                        "section of --wire-report)")
+    p.add_argument("--wire-report", type=Path, default=Path("reports/wire_mirror.md"))
     p.add_argument("--min-eye-distance-mm", type=finite(0.0, 1000.0), default=20.0)
     p.add_argument("--max-eye-distance-mm", type=finite(0.0, 1000.0), default=50.0)
     p.add_argument("--max-z-mm", type=finite(-1000.0, 1000.0), default=-2.0, help="lights in front of this plane")

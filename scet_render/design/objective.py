@@ -32,6 +32,7 @@ from estimator.banding import NO_PULSE, band_layout, row_strobe
 from estimator.eye import gaze_direction
 from estimator.matching import GlintMatcher, MatchParams
 from estimator.geometry import project_glints
+from estimator.geometry.wire import eye_wire_glints, setup_wire_mirrors
 from estimator.setup import Setup
 from estimator.tracker import MAX_RESIDUAL_PX, MIN_GLINTS
 
@@ -137,19 +138,51 @@ def band_model(setup: Setup) -> BandModel:
 def layout_glints(setup: Setup, lights_m, poses: DesignPoses, shells: Shells | None = None):
     """Noise-free glints (P, n, 2) and whether each is usable (P, n): on the cap, inside the
     image, past lids and skin, and clear of every other usable glint by
-    :data:`MIN_SEPARATION_PX`."""
+    :data:`MIN_SEPARATION_PX`. Every light is a point source."""
     lights = np.asarray(lights_m, dtype=np.float64).reshape(-1, 3)
     eye = setup.eye
-    shells = scene_shells(setup) if shells is None else shells
     center = eye.cornea_center(poses.yaw_rad, poses.pitch_rad)
     axis = gaze_direction(poses.yaw_rad, poses.pitch_rad)
     g, vis, pts = project_glints(setup.camera, center, eye.cornea_radius_m, lights,
                                  cornea_axis=axis, cap_cos_min=eye.cap_cos_min,
                                  return_points=True)
-    vis = vis & glint_unblocked(setup, shells, pts, lights)
+    return usable_glints(setup, g, vis, pts, lights, shells)
+
+
+def setup_layout_glints(setup: Setup, poses: DesignPoses, shells: Shells | None = None):
+    """:func:`layout_glints` of the setup's own lights, where a ``wire_mirror`` group's turns
+    are the LED seen in each wire turn (two bounces, :func:`estimator.geometry.wire.eye_wire_glints`;
+    the light toward the cornea leaves the wire's highlight) and other groups are points."""
+    lights = setup.lights_world_m
+    wires = setup_wire_mirrors(setup)
+    if not wires:
+        return layout_glints(setup, lights, poses, shells)
+    eye = setup.eye
+    center = eye.cornea_center(poses.yaw_rad, poses.pitch_rad)
+    axis = gaze_direction(poses.yaw_rad, poses.pitch_rad)
+    g, vis, pts = project_glints(setup.camera, center, eye.cornea_radius_m, lights,
+                                 cornea_axis=axis, cap_cos_min=eye.cap_cos_min,
+                                 return_points=True)
+    g, vis, pts = np.array(g), np.array(vis), np.array(pts)
+    sources = np.array(np.broadcast_to(lights, pts.shape))
+    for _, first, mirror in wires:
+        w = eye_wire_glints(eye, setup.camera, mirror, poses.yaw_rad, poses.pitch_rad)
+        sl = slice(first, first + mirror.turns)
+        g[:, sl], vis[:, sl] = w.glints_px, w.visible
+        pts[:, sl], sources[:, sl] = w.cornea_point_m, w.highlight_m
+    return usable_glints(setup, g, vis, pts, sources, shells)
+
+
+def usable_glints(setup: Setup, glints_px, visible, points_m, sources_m, shells: Shells | None = None):
+    """(glints (P, n, 2), usable (P, n)): ``visible`` glints whose rays pass the lids and the
+    skin (``sources_m`` (n, 3) or (P, n, 3): where the light toward the cornea comes from),
+    clear of every other usable glint by :data:`MIN_SEPARATION_PX`."""
+    shells = scene_shells(setup) if shells is None else shells
+    g = glints_px
+    vis = visible & glint_unblocked(setup, shells, points_m, sources_m)
     gz = np.where(vis[..., None], g, np.nan)
     d = np.linalg.norm(gz[:, :, None, :] - gz[:, None, :, :], axis=-1)
-    idx = np.arange(lights.shape[0])
+    idx = np.arange(g.shape[1])
     d[:, idx, idx] = np.inf
     crowded = np.nanmin(np.where(np.isnan(d), np.inf, d), axis=2) < MIN_SEPARATION_PX
     return g, vis & ~crowded
@@ -251,7 +284,7 @@ def evaluate_layout(setup: Setup, poses: DesignPoses, *, noise_px: float = 0.5, 
 
     model = band_model(setup)
     lights = setup.lights_world_m
-    g, usable = layout_glints(setup, lights, poses)
+    g, usable = setup_layout_glints(setup, poses)
     bands = glint_bands(model, g, usable)
     counts = band_counts(model, g, usable)
     rng = np.random.default_rng(np.random.SeedSequence([seed, 11]))

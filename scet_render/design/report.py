@@ -10,13 +10,15 @@ from pathlib import Path
 import numpy as np
 
 from estimator.formats import atomic_write
+from estimator.geometry.wire_model import WireMirror
 from estimator.scene import parse_scene
 from estimator.setup import Setup
 
 from .objective import MIN_SEPARATION_PX, ROW_WEIGHT_MIN, VISIBLE_SHARE_MIN, layout_glints
 from .search import DesignResult
+from .wire import wire_mirror_table
 
-_HEADER = re.compile(r"^\s*\[")
+_HEADER = re.compile(r"^\s*\[\[?[A-Za-z_\"]")  # a table header, not a row of an array
 
 
 def scene_without_lights(text: str) -> str:
@@ -79,9 +81,16 @@ def designed_scene_text(source_setup: Setup, result: DesignResult, name: str) ->
             f"{s.grid[1]} grid + {s.motion} motion poses.",
             *[f"# {line}." for line in score_lines(result)]]
     tables = []
+    wires = [g for g in result.setup.lights.groups if isinstance(g.emitter, WireMirror)]
     for i, a in enumerate(result.arcs):
-        tables.append(f"# arc {i}: {a.describe()}\n"
-                      + a.scene_table(c_e, f"arc{i}", b.source_diameter_mm))
+        if wires:  # the wire style: each arc is a wire-wound mirror with its LED
+            m = wires[i].emitter.posed(wires[i].pose)
+            tables.append(f"# arc {i}: {a.describe()}; a wire_mirror of {m.turns} turns, its LED "
+                          f"at the cornea's mirror image through the arc's plane\n"
+                          + wire_mirror_table(m, wires[i].name))
+        else:
+            tables.append(f"# arc {i}: {a.describe()}\n"
+                          + a.scene_table(c_e, f"arc{i}", b.source_diameter_mm))
     if result.free_m.shape[0]:
         pos = ",\n".join("  [" + ", ".join(f"{x:.9f}" for x in p) + "]" for p in result.free_m)
         tables.append("# free lights: placed one at a time where each adds most bands\n"
@@ -91,6 +100,12 @@ def designed_scene_text(source_setup: Setup, result: DesignResult, name: str) ->
     loaded = parse_scene(text, "<designed scene>")
     if not np.allclose(loaded.lights_world_m, result.setup.lights_world_m, atol=1e-8):
         raise RuntimeError("the written scene does not reproduce the designed lights")
+    for a, b in zip(loaded.lights.groups, result.setup.lights.groups):
+        if isinstance(b.emitter, WireMirror) and not (
+                isinstance(a.emitter, WireMirror)
+                and np.allclose(a.emitter.posed(a.pose).led_position_m,
+                                b.emitter.posed(b.pose).led_position_m, atol=1e-12)):
+            raise RuntimeError("the written scene does not reproduce the designed LEDs")
     return text
 
 

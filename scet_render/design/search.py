@@ -7,7 +7,10 @@
    pose), plus a tie-breaker that rewards glints up to ``need`` in the pairs still short
    (a smooth signal while few bands reach the bar). Lights outside the region, and, in the
    wire style, neighbours closer than the wire allows, are penalised (one whole share per
-   offending light: the best layout has none).
+   offending light: the best layout has none). In the wire style every arc is a wire-wound
+   mirror lit by one LED (:mod:`~scet_render.design.wire`) and the objective counts its
+   two-bounce glints; an LED outside the region or a mirror that cannot be built is penalised
+   like an offending light.
 2. **Free lights** (``free`` > 0): from admissible positions drawn over the region, lights
    are added one at a time, each the one that brings most short (pose, band) pairs closer to
    ``need``, as long as one adds anything (a light that blends with existing glints at a pose
@@ -31,7 +34,7 @@ from estimator.tracker import MIN_GLINTS
 from .families import Arc, ArcFamily
 from .objective import (BandModel, DesignPoses, LayoutScore, band_counts, band_model,
                         counted_share, design_poses, evaluate_layout, glint_bands, layout_glints,
-                        with_lights)
+                        setup_layout_glints, with_lights)
 from .region import Region, admissible, on_frame, sample_region, scene_shells
 
 STYLES = ("free", "wire")
@@ -54,7 +57,8 @@ class Budget:
         Lights (of ``lights``) kept for the free stage; 0 in the wire style.
     style : {"free", "wire"}
         ``"wire"``: arcs only, neighbours at least two wire diameters apart (centre to
-        centre), 0.8 mm sources, as the prototype's wire-wound mirror can be built.
+        centre), each arc a ``wire_mirror`` (0.8 mm turns on a ``strip_width_m`` strip, one
+        LED: :mod:`~scet_render.design.wire`), as the prototype's mirror is built.
     min_per_arc : int
     """
 
@@ -63,8 +67,13 @@ class Budget:
     free: int = 16
     style: str = "free"
     min_per_arc: int = 4
+    #: The wire style's strip width (m): 2 mm, the prototype's.
+    strip_width_m: float = 2.0e-3
 
     def __post_init__(self):
+        if not (np.isfinite(self.strip_width_m) and WIRE_DIAMETER_M <= self.strip_width_m <= 0.05):
+            raise ValueError(f"strip_width_m must lie in [{WIRE_DIAMETER_M}, 0.05] m (no narrower "
+                             f"than the wire), got {self.strip_width_m!r}")
         if self.style not in STYLES:
             raise ValueError(f"style must be one of {STYLES}, got {self.style!r}")
         if self.lights < MIN_GLINTS:
@@ -176,6 +185,18 @@ def coverage_bound(setup: Setup, model: BandModel, poses: DesignPoses, candidate
     return counted_share(model, counts, need), counts
 
 
+def _wire_layout(setup: Setup, region: Region, arcs, budget: Budget):
+    """(the arcs' ``wire_mirror`` groups, penalty): one per mirror that cannot be built and per
+    LED that is not admissible; groups None when a mirror cannot be built."""
+    from .wire import led_positions, wire_groups
+
+    try:
+        groups = wire_groups(setup, arcs, WIRE_DIAMETER_M, width_m=budget.strip_width_m)
+    except ValueError:
+        return None, float(len(arcs))
+    return groups, float((~admissible(setup, region, led_positions(groups))).sum())
+
+
 def _arc_penalty(arcs: tuple[Arc, ...], budget: Budget) -> float:
     if budget.style != "wire":
         return 0.0
@@ -264,6 +285,12 @@ def design_lights(setup: Setup, budget: Budget = Budget(), region: Region = Regi
     def cost(x):
         arcs, pos = layout(x)
         bad = (~admissible(setup, region, pos)).sum() + _arc_penalty(arcs, budget)
+        if budget.style == "wire":
+            groups, bad_wire = _wire_layout(setup, region, arcs, budget)
+            if groups is None:
+                return bad + bad_wire
+            g, u = setup_layout_glints(with_lights(setup, groups), search, shells)
+            return -_objective_parts(model, band_counts(model, g, u), settings.need) + bad + bad_wire
         g, u = layout_glints(setup, pos, search, shells)
         return -_objective_parts(model, band_counts(model, g, u), settings.need) + bad
 
@@ -277,25 +304,36 @@ def design_lights(setup: Setup, budget: Budget = Budget(), region: Region = Regi
                                 popsize=settings.popsize, workers=1, polish=False, tol=1e-6,
                                 callback=callback)
     arcs, arc_pos = layout(de.x)
-    if not admissible(setup, region, arc_pos).all() or _arc_penalty(arcs, budget):
+    groups, bad_wire = (_wire_layout(setup, region, arcs, budget) if budget.style == "wire"
+                        else (None, 0))
+    if not admissible(setup, region, arc_pos).all() or _arc_penalty(arcs, budget) or bad_wire:
         raise ValueError("region: the search found no arc layout inside the region that keeps "
-                         "every light admissible; widen the region (min_eye_distance_m, "
+                         "every light" + (" and LED" if budget.style == "wire" else "")
+                         + " admissible; widen the region (min_eye_distance_m, "
                          "max_eye_distance_m, screen_margin_deg) or raise maxiter")
-    g, u = layout_glints(setup, arc_pos, poses, shells)
-    counts_arcs = band_counts(model, g, u)
-    g, u = layout_glints(setup, arc_pos, search, shells)
-    free_m, _ = _greedy_free(setup, model, search, band_counts(model, g, u), arc_pos, candidates,
-                             budget.free, settings.need, shells)
-    g, u = layout_glints(setup, np.concatenate([arc_pos, free_m]), poses, shells)
-    counts_after = band_counts(model, g, u)
+    if groups is not None:  # the wire style: no free lights, the arcs are the layout
+        g, u = setup_layout_glints(with_lights(setup, groups), poses, shells)
+        counts_arcs = counts_after = band_counts(model, g, u)
+        free_m = np.zeros((0, 3))
+    else:
+        g, u = layout_glints(setup, arc_pos, poses, shells)
+        counts_arcs = band_counts(model, g, u)
+        g, u = layout_glints(setup, arc_pos, search, shells)
+        free_m, _ = _greedy_free(setup, model, search, band_counts(model, g, u), arc_pos,
+                                 candidates, budget.free, settings.need, shells)
+        g, u = layout_glints(setup, np.concatenate([arc_pos, free_m]), poses, shells)
+        counts_after = band_counts(model, g, u)
     if progress is not None:
         progress("free", 1, 1)
-    groups = [LightGroup(f"arc{i}", "arc", a.positions(c_e), source_radius_m=0.5e-3
-                         * budget.source_diameter_mm) for i, a in enumerate(arcs)]
+    if groups is not None:
+        groups = list(groups)
+    else:
+        groups = [LightGroup(f"arc{i}", "arc", a.positions(c_e), source_radius_m=0.5e-3
+                             * budget.source_diameter_mm) for i, a in enumerate(arcs)]
     if free_m.shape[0]:
         groups.append(LightGroup("free", "list", free_m, source_radius_m=0.2e-3))
     designed = with_lights(setup, groups)
-    g0, u0 = layout_glints(setup, setup.lights_world_m, poses, shells)
+    g0, u0 = setup_layout_glints(setup, poses, shells)
     counts_before = band_counts(model, g0, u0)
     before = after = None
     if settings.evaluate:

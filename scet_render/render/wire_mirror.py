@@ -6,8 +6,11 @@
   inner face's chords sag 0.1 µm inside the circle, under the wire it carries.
 * **Wire turns**: each turn's stretch on the inner face as Mitsuba's analytic ``cylinder``
   (``p0``, ``p1``, ``radius``; open, no caps) from edge to edge of the strip: exactly the
-  solver's cylinder (the bends round the strip's edges are not drawn; the solver labels a
-  highlight that would sit on them not visible).
+  solver's cylinder. The rest of the turn, round the strip's edges, along its sides and back
+  over its outer face, is :func:`wire_bend_mesh` (a tube mesh of the wire's centreline: the
+  strip's cross-section offset by the wire's radius, quarter circles of radius d/2 round each
+  corner); drawn only with ``bends=True``, since the solver labels a highlight that would sit
+  on a bend not visible, so a render with them shows light the labels do not hold.
 * **Wire material**: Mitsuba 3 has no layered coating BSDF, so the enamel over copper is a
   smooth ``conductor`` with copper's complex index at 850 nm (0.277 + 5.449i,
   :data:`~estimator.geometry.wire_model.COPPER_INDEX_850NM`) and ``specular_reflectance``
@@ -79,6 +82,74 @@ def strip_mesh(mirror: WireMirror, segments: int = STRIP_SEGMENTS):
     return trimesh.Trimesh(verts, np.concatenate(faces), process=True)
 
 
+#: Samples per quarter bend and round the wire's circumference of :func:`wire_bend_mesh`:
+#: the tube's chords sag d/2 (1 - cos(pi / 24)) = 3.4 um round a 0.8 mm wire.
+BEND_SEGMENTS = 12
+TUBE_SEGMENTS = 24
+
+
+def wire_turn_path_m(mirror: WireMirror, turn: int, bend_segments: int = BEND_SEGMENTS) -> np.ndarray:
+    """(k, 3) the centreline of turn ``turn`` off the inner face: from the inner stretch's end at
+    +w/2 round the strip's edge, over the side, round the outer corner, back along the outer
+    face, round the other edges, to the inner stretch's end at -w/2 (world frame of
+    ``mirror``). In the plane of the turn's radial direction and the arc's normal."""
+    radial = mirror.radial[turn]
+    rw, hw = mirror.wire_radius_m, 0.5 * mirror.width_m
+    r_in, r_out = mirror.radius_m, mirror.radius_m + mirror.thickness_m
+    q = np.linspace(0.0, 0.5 * np.pi, bend_segments + 1)
+    # (radius from the arc's axis, position along the normal) of the path, corner by corner:
+    # each corner of the strip's rectangular cross-section, the centreline a quarter circle of
+    # radius d/2 about it, turning outward.
+    corners = [((r_in, hw), np.pi, 0.5 * np.pi), ((r_out, hw), 0.5 * np.pi, 0.0),
+               ((r_out, -hw), 0.0, -0.5 * np.pi), ((r_in, -hw), -0.5 * np.pi, -np.pi)]
+    pts = []
+    for (c_r, c_z), a0, a1 in corners:
+        a = a0 + (a1 - a0) * q / q[-1]
+        pts.append(np.c_[c_r + rw * np.cos(a), c_z + rw * np.sin(a)])
+    rz = np.concatenate(pts)
+    return mirror.center_m + rz[:, :1] * radial + rz[:, 1:] * mirror.normal
+
+
+def _tube(path: np.ndarray, radius: float, segments: int):
+    """(vertices, faces) of an open tube of ``radius`` round the polyline ``path`` (k, 3): a
+    ring of ``segments`` vertices at each point, normal to the path's mean tangent there."""
+    t = np.gradient(path, axis=0)
+    t /= np.linalg.norm(t, axis=1, keepdims=True)
+    # A frame carried along the path (the path is planar: its plane's normal serves throughout).
+    n_plane = np.cross(path[1] - path[0], path[-1] - path[0])
+    if np.linalg.norm(n_plane) < 1e-15:
+        n_plane = np.cross(t[0], [1.0, 0.0, 0.0] if abs(t[0][0]) < 0.9 else [0.0, 1.0, 0.0])
+    n_plane /= np.linalg.norm(n_plane)
+    b = np.cross(t, n_plane)
+    b /= np.linalg.norm(b, axis=1, keepdims=True)
+    phi = 2 * np.pi * np.arange(segments) / segments
+    verts = (path[:, None, :] + radius * (np.cos(phi)[None, :, None] * n_plane
+                                          + np.sin(phi)[None, :, None] * b[:, None, :]))
+    k = path.shape[0]
+    i, j = np.meshgrid(np.arange(k - 1), np.arange(segments), indexing="ij")
+    a = i * segments + j
+    c = i * segments + (j + 1) % segments
+    faces = np.concatenate([np.stack([a, c, a + segments], -1).reshape(-1, 3),
+                            np.stack([c, c + segments, a + segments], -1).reshape(-1, 3)])
+    return verts.reshape(-1, 3), faces
+
+
+def wire_bend_mesh(mirror: WireMirror, bend_segments: int = BEND_SEGMENTS,
+                   tube_segments: int = TUBE_SEGMENTS):
+    """Every turn's wire off the inner face (:func:`wire_turn_path_m`) as one
+    ``trimesh.Trimesh`` (metres, world frame of ``mirror``): open tubes that meet the inner
+    stretch's analytic cylinder at its end circles."""
+    import trimesh
+
+    verts, faces, n = [], [], 0
+    for k in range(mirror.turns):
+        v, f = _tube(wire_turn_path_m(mirror, k, bend_segments), mirror.wire_radius_m, tube_segments)
+        verts.append(v)
+        faces.append(f + n)
+        n += v.shape[0]
+    return trimesh.Trimesh(np.concatenate(verts), np.concatenate(faces), process=False)
+
+
 def _point(p) -> list:
     return [float(c * SCENE_UNITS_PER_M) for c in p]
 
@@ -98,7 +169,7 @@ def _led_to_world(mirror: WireMirror) -> np.ndarray:
 
 
 def wire_mirror_objects(mirror: WireMirror, name: str, *, radiance: float, split: bool,
-                        strip_albedo: float = 0.5) -> tuple[dict, dict]:
+                        strip_albedo: float = 0.5, bends: bool = False) -> tuple[dict, dict]:
     """Mitsuba scene entries for one wire mirror (world frame).
 
     Parameters
@@ -113,6 +184,9 @@ def wire_mirror_objects(mirror: WireMirror, name: str, *, radiance: float, split
         The renderer's split channels (strobe light in R).
     strip_albedo : float
         The printed strip's near-IR albedo (a light PLA/PETG print: ~0.5 [G]).
+    bends : bool
+        Also draw the wire round the strip's edges and over its outer face
+        (:func:`wire_bend_mesh`, ``<name>_bends``, the wire's material).
 
     Returns
     -------
@@ -147,7 +221,13 @@ def wire_mirror_objects(mirror: WireMirror, name: str, *, radiance: float, split
     objects[strip] = {"type": "ply", "filename": f"meshes/{strip}.ply", "face_normals": False,
                       "bsdf": {"type": "twosided", "bsdf": {
                           "type": "diffuse", "reflectance": {"type": "rgb", "value": [strip_albedo] * 3}}}}
-    return objects, {strip: strip_mesh(mirror)}
+    meshes = {strip: strip_mesh(mirror)}
+    if bends:
+        objects[f"{name}_bends"] = {"type": "ply", "filename": f"meshes/{name}_bends.ply",
+                                    "face_normals": False, "bsdf": wire_bsdf}
+        meshes[f"{name}_bends"] = wire_bend_mesh(mirror)
+    return objects, meshes
 
 
-__all__ = ["wire_mirror_objects", "strip_mesh", "wire_reflectance_scale", "STRIP_SEGMENTS"]
+__all__ = ["wire_mirror_objects", "strip_mesh", "wire_bend_mesh", "wire_turn_path_m",
+           "wire_reflectance_scale", "STRIP_SEGMENTS", "BEND_SEGMENTS", "TUBE_SEGMENTS"]
