@@ -31,17 +31,9 @@ from typing import Callable, Iterator
 import numpy as np
 
 from .banding import NO_PULSE, row_strobe
-from .calibration import (
-    MAPPING_TERMS,
-    Calibration,
-    calibrate_joint,
-    calibrate_joint_conic,
-    calibration_warnings,
-    fit_gaze_mapping,
-    fit_glint_flux,
-    identify_on_conic,
-    reidentify_on_conic,
-)
+from .calibration import (MAPPING_TERMS, Calibration, calibrate_joint, calibrate_joint_conic,
+                          calibrate_wire, calibration_warnings, fit_gaze_mapping, fit_glint_flux,
+                          identify_on_conic, reidentify_on_conic)
 from .capture import is_capture_folder
 from .checks import load_json
 from .cornea import check_conic
@@ -296,12 +288,14 @@ def calibrate_glint_flux(setup: Setup, calibration: Calibration, glints_px, flux
 
 
 def calibrate_from_glints(setup: Setup, glints_px, targets_m, *,
-                          frames_total: int | None = None,
-                          cornea_model: str = "sphere") -> Calibration:
+                          frames_total: int | None = None, cornea_model: str = "sphere",
+                          light_model: str = "points") -> Calibration:
     """:func:`calibrate_from_folder` on identified glints: (m, n, 2) px (NaN: not seen) of
     ``setup``'s lights with the eye fixating (m, 3) ``targets_m`` (the feature-level
     simulator's glints, or a folder's). ``frames_total``: the frames there were (default m).
-    ``cornea_model``: ``"sphere"`` (the paper's) or ``"conic"`` (Q calibrated too)."""
+    ``cornea_model``: ``"sphere"`` (the paper's) or ``"conic"`` (Q calibrated too).
+    ``light_model``: ``"points"`` or ``"wire_mirror"`` (the wire turns' virtual sources, fitted
+    from the point fit's answer: :func:`estimator.calibration.calibrate_wire`)."""
     check_conic(cornea_model, 0.0)
     glints_px = np.asarray(glints_px, dtype=np.float64)
     used = glints_px.shape[0]
@@ -312,11 +306,13 @@ def calibrate_from_glints(setup: Setup, glints_px, targets_m, *,
         lighting, orbit, q = calibrate_joint_conic(setup.camera, setup.lights_world_m, glints_px,
                                                    targets_m, mask, center0_m=center0)
         cal = replace(Calibration.from_fits(lighting, orbit), cornea_model="conic",
-                      cornea_asphericity=q)
+                      cornea_asphericity=q, light_model=light_model)
     else:
         lighting, orbit = calibrate_joint(setup.camera, setup.lights_world_m, glints_px,
                                           targets_m, mask, center0_m=center0)
-        cal = Calibration.from_fits(lighting, orbit)
+        if light_model == "wire_mirror":
+            lighting, orbit = calibrate_wire(setup, glints_px, targets_m, mask, (lighting, orbit))
+        cal = replace(Calibration.from_fits(lighting, orbit), light_model=light_model)
     cal = cal.with_quality(
         rms_px=float(lighting.rms_px), frames_used=used, frames_total=total,
         warnings=calibration_warnings(lighting, orbit, frames_used=used, frames_total=total))
