@@ -153,7 +153,8 @@ def _highlights(O, m: WireMirror, c, r, W, tol_m, rounds=None):
     return W, (step <= tol_m) if rounds is None else np.isfinite(step)
 
 
-def wire_glints_jacobian(camera: Camera, lights: WireLights, centers_m, radius_m, start=None):
+def wire_glints_jacobian(camera: Camera, lights: WireLights, centers_m, radius_m, start=None, *,
+                         d_sources=None, tol_m: float = SOURCE_TOL_M):
     """Glints of the virtual sources and their total derivative with respect to the cornea
     centre (module docstring).
 
@@ -165,6 +166,11 @@ def wire_glints_jacobian(camera: Camera, lights: WireLights, centers_m, radius_m
     radius_m : float
     start : (B, n, 3) float, optional
         Warm start of the sources.
+    d_sources : (B, n, 3, 3) float, optional
+        dW/dc to use instead of differencing (a chord: the fits hold the first one, since the
+        highlight's share of the Jacobian changes little over their steps).
+    tol_m : float
+        The sources' tolerance.
 
     Returns
     -------
@@ -174,15 +180,19 @@ def wire_glints_jacobian(camera: Camera, lights: WireLights, centers_m, radius_m
     sources_m : (B, n, 3) float
         The virtual sources (the next call's warm start).
     converged : (B, n) bool
+    d_sources : (B, n, 3, 3) float
+        dW/dc (the one given, or the differences).
     """
     c = as_points(centers_m, "centers_m").reshape(-1, 3)
-    W, ok = lights.sources(c, radius_m, start)
+    W, ok = lights.sources(c, radius_m, start, tol_m=tol_m)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         g, _, d_c, _, d_l = glint_jacobians(camera, c, radius_m, W)
-    dW = np.empty(W.shape + (3,))
-    for k in range(3):
-        ck = c.copy()
-        ck[:, k] += SOURCE_STEP_M
-        Wk, _ = lights.sources(ck, radius_m, W, rounds=JACOBIAN_ROUNDS)
-        dW[..., k] = (Wk - W) / SOURCE_STEP_M
-    return g, d_c + d_l @ dW, W, ok
+    dW = d_sources
+    if dW is None:
+        dW = np.empty(W.shape + (3,))
+        for k in range(3):
+            ck = c.copy()
+            ck[:, k] += SOURCE_STEP_M
+            Wk, _ = lights.sources(ck, radius_m, W, rounds=JACOBIAN_ROUNDS)
+            dW[..., k] = (Wk - W) / SOURCE_STEP_M
+    return g, d_c + d_l @ dW, W, ok, dW

@@ -102,7 +102,7 @@ def test_jacobian_includes_the_highlights_motion(setup, poses):
     lights = WireLights.from_setup(setup)
     c = setup.eye.cornea_center(*setup.eye.angles_toward(targets))
     r = setup.eye.cornea_radius_m
-    g, J, W, ok = wire_glints_jacobian(setup.camera, lights, c, r)
+    g, J, W, ok, _ = wire_glints_jacobian(setup.camera, lights, c, r)
     assert ok.all()
     h = 1e-7
     worst = frozen = 0.0
