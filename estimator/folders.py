@@ -217,7 +217,8 @@ def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
                                         tuple(detected), np.array(fluxes))
 
 
-def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere") -> Calibration:
+def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere",
+                          light_model: str = "points") -> Calibration:
     """Calibrate from a folder of single-pulse calibration frames (targets in labels.jsonl).
 
     Lighting pose, corneal radius, eye centre and orbit radius are fitted at once
@@ -228,13 +229,14 @@ def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere")
     (:func:`estimator.calibration.calibrate_joint_conic`) and records it in the file. The
     calibration also records each light's power for the glints' expected flux
     (``glint_flux``, :func:`calibrate_glint_flux`: the tracker's check for glints cut by a
-    lash), a conic's from the glints identified on the calibrated conic.
+    lash), a conic's from the glints identified on the calibrated conic. ``light_model``: as
+    :func:`calibrate_from_glints` (``"wire_mirror"``: the wire turns' moving virtual sources).
     """
     check_conic(cornea_model, 0.0)
     cal_setup, cg = calibration_glints(folder, setup)
     total = len(read_targets(folder))
     cal = calibrate_from_glints(cal_setup, cg.glints_px, cg.targets_m, frames_total=total,
-                                cornea_model=cornea_model)
+                                cornea_model=cornea_model, light_model=light_model)
     glints, flux = cg.glints_px, cg.flux
     if cornea_model == "conic":
         # The spherical matcher's identities of oblique glints are wrong on a conic cornea:

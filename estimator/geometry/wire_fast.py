@@ -86,7 +86,8 @@ class WireLights:
         corr = RigidPose() if correction is None else correction
         mirrors = tuple((first, m.posed(corr)) for _, first, m in setup_wire_mirrors(setup))
         if not mirrors:
-            raise ValueError(f"{setup.name}: no wire_mirror light group to model")
+            raise ValueError(f"light_model 'wire_mirror' needs a wire_mirror light group; scene "
+                             f"{setup.name!r} has none")
         return cls(setup.camera.position_m, corr.apply(setup.lights_world_m), mirrors)
 
     def posed(self, correction: RigidPose) -> "WireLights":

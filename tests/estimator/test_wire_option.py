@@ -211,5 +211,5 @@ def test_bad_light_model_arguments(setup):
         Calibration(eye_center_m=np.zeros(3), cornea_model="conic", cornea_asphericity=-0.2,
                     light_model="wire_mirror")
     paper = load_scene("paper_sim")
-    with pytest.raises(ValueError, match="no wire_mirror"):
+    with pytest.raises(ValueError, match="needs a wire_mirror light group"):
         WireLights.from_setup(paper)
