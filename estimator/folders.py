@@ -38,7 +38,7 @@ from .capture import is_capture_folder
 from .checks import load_json
 from .cornea import check_conic
 from .formats import atomic_write
-from .gaze import fit_cornea_centers
+from .gaze import calibrated_lights, fit_cornea_centers
 from .glints import NO_BAND, detect_glints
 from .lens import ideal_setup
 from .inputs import (
@@ -285,7 +285,7 @@ def calibrate_glint_flux(setup: Setup, calibration: Calibration, glints_px, flux
     conic = {"asphericity": calibration.cornea_asphericity,
              "eye_center_m": calibration.eye_center_m} if calibration.conic else {}
     return fit_glint_flux(setup.camera, calibration.cornea_radius_m,
-                          calibration.lights_world_m(setup.lights_world_m), c, glints_px,
+                          calibrated_lights(setup, calibration), c, glints_px,
                           flux, float(calibration.quality.get("rms_px", np.nan)), **conic)
 
 
