@@ -86,3 +86,36 @@ def test_led_search_scores_and_pairs():
     assert d["candidates"] == 3  # radius 33 mm lies in the strip: refused by WireMirror
     assert d["pair_coverage"] >= d["coverage"].max()
     assert 0 <= d["worst_turn"].min() <= d["coverage"].max() <= 1
+
+
+def test_rendered_file_is_checked_and_tabled(tmp_path):
+    """The rendered-glints file of benchmarks/bench_wire_track.py: refused naming the key when
+    it is not one; tabled like the feature level when it is (here filled with the solver's
+    glints plus 0.05 px of noise, standing in for centroids)."""
+    from estimator.scene import load_scene
+    from scet_render.simulate import parse_targets
+    from scet_render.study.wire import wire_glints_for
+    from scet_render.study.wire_track import (RENDERED_FORMAT, RENDERED_VERSION, load_rendered,
+                                              rendered_accuracy, table_lines)
+
+    assert load_rendered(tmp_path / "none.npz") is None
+    np.savez(tmp_path / "bad.npz", format="other", version=1)
+    with pytest.raises(ValueError, match="bad.npz: format"):
+        load_rendered(tmp_path / "bad.npz")
+    np.savez(tmp_path / "old.npz", format=RENDERED_FORMAT, version=RENDERED_VERSION)
+    with pytest.raises(ValueError, match="calibration_targets_m: missing"):
+        load_rendered(tmp_path / "old.npz")
+    setup = load_scene("prototype_ov5647_wire")
+    rng = np.random.default_rng(7)
+    data = {"format": RENDERED_FORMAT, "version": RENDERED_VERSION, "spp": 1, "led_m": 2e-3}
+    for name, t in (("calibration", parse_targets("calib:5x5", setup)), ("test", setup.screen.grid(3, 2))):
+        g, v = wire_glints_for(setup, t)
+        g = np.where(v[..., None], g, np.nan)
+        data.update({f"{name}_targets_m": t, f"{name}_labels_px": g, f"{name}_seconds": np.ones(len(t)),
+                     f"{name}_centroids_px": g + rng.normal(0, 0.05, g.shape)})
+    np.savez(tmp_path / "ok.npz", **data)
+    r = rendered_accuracy(setup, load_rendered(tmp_path / "ok.npz"))
+    assert r["frames"] == (25, 6) and 0.03 < np.median(r["centroid_error_px"]) < 0.1
+    t = r["table"]
+    assert np.median(t["option"]["geometric"]["errors_deg"]) < np.median(t["calibrated"]["geometric"]["errors_deg"])
+    assert len(table_lines(t)) == 2 + 6
