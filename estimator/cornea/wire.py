@@ -89,7 +89,14 @@ def fit_cornea_wire(problem: FitProblem, lights: WireLights, glints_px, mask, x0
     p = x.shape[1]
     lo = np.full(p, -np.inf) if lower is None else np.asarray(lower, dtype=np.float64)
     hi = np.full(p, np.inf) if upper is None else np.asarray(upper, dtype=np.float64)
+    # Each sample's seen glints first, cut to the largest count k (a band holds a few of the
+    # lights' glints, and the sources cost per glint).
+    n_seen = mask.sum(axis=1)
+    k = max(int(n_seen.max(initial=0)), 1)
+    order = np.argsort(~mask, axis=1, kind="stable")[:, :k]
     glints = np.where(mask[..., None], glints, 0.0)
+    glints = np.take_along_axis(glints, order[..., None], axis=1)
+    mask = np.take_along_axis(mask, order, axis=1)
     has_prior = np.zeros(B, dtype=bool)
     if prior_mean is not None:
         mu = np.broadcast_to(np.asarray(prior_mean, dtype=np.float64), (B, p))
@@ -105,11 +112,12 @@ def fit_cornea_wire(problem: FitProblem, lights: WireLights, glints_px, mask, x0
         if W is not None and dW is not None:  # predict the sources to first order
             W = W + np.einsum("bnij,bj->bni", dW, c - c_old)
         g, Jc, W_new, ok, dW = wire_glints_jacobian(problem.camera, lights, c, problem.cornea_radius_m,
-                                                    W, d_sources=dW, tol_m=FIT_SOURCE_TOL_M)
+                                                    W, d_sources=dW, tol_m=FIT_SOURCE_TOL_M,
+                                                    light_index=order[idx])
         m = mask[idx]
         r = np.where(m[..., None], g - glints[idx], 0.0)
-        J = np.where(m[..., None, None], Jc @ D[:, None], 0.0).reshape(len(idx), 2 * n, p)
-        r = r.reshape(len(idx), 2 * n)
+        J = np.where(m[..., None, None], Jc @ D[:, None], 0.0).reshape(len(idx), 2 * k, p)
+        r = r.reshape(len(idx), 2 * k)
         cost = np.einsum("bi,bi->b", r, r)
         JtJ = np.swapaxes(J, 1, 2) @ J
         Jtr = np.einsum("bij,bi->bj", J, r)
@@ -123,8 +131,8 @@ def fit_cornea_wire(problem: FitProblem, lights: WireLights, glints_px, mask, x0
     run = np.flatnonzero(enough & start_ok)
     cost = np.full(B, np.inf)
     JtJ, Jtr = np.zeros((B, p, p)), np.zeros((B, p))
-    W = np.full((B, n, 3), np.nan)
-    dW = np.zeros((B, n, 3, 3))
+    W = np.full((B, k, 3), np.nan)
+    dW = np.zeros((B, k, 3, 3))
     C = np.full((B, 3), np.nan)
     iters = np.zeros(B, dtype=int)
     converged = np.zeros(B, dtype=bool)
@@ -164,7 +172,6 @@ def fit_cornea_wire(problem: FitProblem, lights: WireLights, glints_px, mask, x0
     if prior_mean is not None:
         d = x - mu
         cost = cost - np.einsum("bi,bij,bj->b", d, info, d)
-    n_seen = mask.sum(axis=1)
     rms = np.sqrt(np.maximum(cost, 0.0) / np.maximum(n_seen, 1))
     reason = np.full(B, OK, dtype=object)
     reason[~converged] = NOT_CONVERGED

@@ -122,25 +122,42 @@ class WireLights:
             False where a turn's alternation did not settle (or its reflection does not exist).
         """
         c = as_points(centers_m, "centers_m").reshape(-1, 3)
-        B = c.shape[0]
-        out = np.array(np.broadcast_to(self.points_m, (B,) + self.points_m.shape))
-        ok = np.ones(out.shape[:2], dtype=bool)
+        every = np.broadcast_to(np.arange(self.count), (c.shape[0], self.count))
+        return self.sources_of(c, radius_m, every, start, tol_m=tol_m, rounds=rounds)
+
+    def sources_of(self, centers_m, radius_m, light_index, start=None, *,
+                   tol_m: float = SOURCE_TOL_M, rounds: int | None = None):
+        """:meth:`sources` of the lights ``light_index`` (B, k) only (a band's few glints: the
+        alternation then costs per glint seen, not per light).
+
+        Returns
+        -------
+        sources_m : (B, k, 3) float
+        converged : (B, k) bool
+        """
+        c = as_points(centers_m, "centers_m").reshape(-1, 3)
+        idx = np.asarray(light_index)
+        out = self.points_m[idx]
+        ok = np.ones(idx.shape, dtype=bool)
         for first, m in self.mirrors:
-            sl = slice(first, first + m.turns)
-            W0 = None if start is None else np.asarray(start, dtype=np.float64)[:, sl]
-            out[:, sl], ok[:, sl] = _highlights(self.camera_position_m, m, c, radius_m, W0, tol_m,
-                                                rounds)
+            turn = idx - first
+            on = (turn >= 0) & (turn < m.turns)
+            if not on.any():
+                continue
+            turn = np.clip(turn, 0, m.turns - 1)
+            W0 = None if start is None else np.asarray(start, dtype=np.float64)
+            W, okm = _highlights(self.camera_position_m, m, c, radius_m, W0, tol_m, rounds, turn)
+            out = np.where(on[..., None], W, out)
+            ok = np.where(on, okm, ok)
         return out, ok
 
 
-def _highlights(O, m: WireMirror, c, r, W, tol_m, rounds=None):
-    """(B, T, 3) highlights and (B, T) converged: the alternation of
-    :mod:`estimator.geometry.wire` from ``W`` (or each turn's default start); exactly
-    ``rounds`` rounds when given."""
-    axes, rho, L = m.wire_axes_m, m.wire_radius_m, m.led_position_m
-    if W is None:
-        W = np.broadcast_to(axes - rho * m.radial, (c.shape[0],) + axes.shape)
-    W = np.array(W)
+def _highlights(O, m: WireMirror, c, r, W, tol_m, rounds, turn):
+    """(B, k, 3) highlights of the turns ``turn`` (B, k) and (B, k) converged: the alternation
+    of :mod:`estimator.geometry.wire` from ``W`` (or each turn's default start, its axis moved
+    onto the wire); exactly ``rounds`` rounds when given."""
+    axes, rho, L = m.wire_axes_m[turn], m.wire_radius_m, m.led_position_m
+    W = np.array(axes - rho * m.radial[turn] if W is None else W, dtype=np.float64)
     step = np.full(W.shape[:2], np.inf)
     for _ in range(SOURCE_MAX_ROUNDS if rounds is None else rounds):
         P, _, _ = reflection_points(O, c, r, W)
@@ -155,7 +172,7 @@ def _highlights(O, m: WireMirror, c, r, W, tol_m, rounds=None):
 
 
 def wire_glints_jacobian(camera: Camera, lights: WireLights, centers_m, radius_m, start=None, *,
-                         d_sources=None, tol_m: float = SOURCE_TOL_M):
+                         d_sources=None, tol_m: float = SOURCE_TOL_M, light_index=None):
     """Glints of the virtual sources and their total derivative with respect to the cornea
     centre (module docstring).
 
@@ -172,6 +189,8 @@ def wire_glints_jacobian(camera: Camera, lights: WireLights, centers_m, radius_m
         highlight's share of the Jacobian changes little over their steps).
     tol_m : float
         The sources' tolerance.
+    light_index : (B, k) int, optional
+        Only these lights (their glints (B, k, 2) come back); default every light.
 
     Returns
     -------
@@ -185,7 +204,9 @@ def wire_glints_jacobian(camera: Camera, lights: WireLights, centers_m, radius_m
         dW/dc (the one given, or the differences).
     """
     c = as_points(centers_m, "centers_m").reshape(-1, 3)
-    W, ok = lights.sources(c, radius_m, start, tol_m=tol_m)
+    if light_index is None:
+        light_index = np.broadcast_to(np.arange(lights.count), (c.shape[0], lights.count))
+    W, ok = lights.sources_of(c, radius_m, light_index, start, tol_m=tol_m)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         g, _, d_c, _, d_l = glint_jacobians(camera, c, radius_m, W)
     dW = d_sources
@@ -194,6 +215,6 @@ def wire_glints_jacobian(camera: Camera, lights: WireLights, centers_m, radius_m
         for k in range(3):
             ck = c.copy()
             ck[:, k] += SOURCE_STEP_M
-            Wk, _ = lights.sources(ck, radius_m, W, rounds=JACOBIAN_ROUNDS)
+            Wk, _ = lights.sources_of(ck, radius_m, light_index, W, rounds=JACOBIAN_ROUNDS)
             dW[..., k] = (Wk - W) / SOURCE_STEP_M
     return g, d_c + d_l @ dW, W, ok, dW
