@@ -117,13 +117,22 @@ def load_rendered(path) -> dict | None:
 
 
 def rendered_accuracy(setup, rendered: dict) -> dict:
-    """:func:`accuracy_table` on rendered centroids, plus their error against the labels."""
+    """:func:`accuracy_table` on rendered centroids, plus their error against the labels (the
+    solver's glints averaged over the LED's disk) and those labels' offset from the LED
+    centre's glints (the point the option models)."""
     table = accuracy_table(setup, rendered["calibration_centroids_px"], rendered["calibration_targets_m"],
                            rendered["test_centroids_px"], rendered["test_targets_m"])
     d = np.concatenate([np.linalg.norm(rendered[f"{k}_centroids_px"] - rendered[f"{k}_labels_px"], axis=-1).ravel()
                         for k in ("calibration", "test")])
     d = d[np.isfinite(d)]
-    return {"table": table, "centroid_error_px": d, "spp": int(rendered["spp"]),
+    from .wire import wire_glints_for
+
+    shift = []
+    for k in ("calibration", "test"):
+        g, v = wire_glints_for(setup, rendered[f"{k}_targets_m"])
+        shift.append(np.linalg.norm(np.where(v[..., None], g, np.nan) - rendered[f"{k}_labels_px"], axis=-1).ravel())
+    shift = np.concatenate(shift)
+    return {"table": table, "centroid_error_px": d, "disk_shift_px": shift[np.isfinite(shift)], "spp": int(rendered["spp"]),
             "led_mm": 1e3 * float(rendered["led_m"]), "frames": (len(rendered["calibration_targets_m"]),
                                                                  len(rendered["test_targets_m"])),
             "seconds": float(np.sum(rendered["calibration_seconds"]) + np.sum(rendered["test_seconds"]))}
