@@ -125,11 +125,11 @@ def rendered_accuracy(setup, rendered: dict) -> dict:
     d = np.concatenate([np.linalg.norm(rendered[f"{k}_centroids_px"] - rendered[f"{k}_labels_px"], axis=-1).ravel()
                         for k in ("calibration", "test")])
     d = d[np.isfinite(d)]
-    from .wire import wire_glints_for
+    from ..simulate import ground_truth_glints
 
     shift = []
     for k in ("calibration", "test"):
-        g, v = wire_glints_for(setup, rendered[f"{k}_targets_m"])
+        g, v, _ = ground_truth_glints(setup, *setup.eye.angles_toward(rendered[f"{k}_targets_m"]))
         shift.append(np.linalg.norm(np.where(v[..., None], g, np.nan) - rendered[f"{k}_labels_px"], axis=-1).ravel())
     shift = np.concatenate(shift)
     return {"table": table, "centroid_error_px": d, "disk_shift_px": shift[np.isfinite(shift)], "spp": int(rendered["spp"]),
