@@ -31,22 +31,14 @@ from typing import Callable, Iterator
 import numpy as np
 
 from .banding import NO_PULSE, row_strobe
-from .calibration import (
-    MAPPING_TERMS,
-    Calibration,
-    calibrate_joint,
-    calibrate_joint_conic,
-    calibration_warnings,
-    fit_gaze_mapping,
-    fit_glint_flux,
-    identify_on_conic,
-    reidentify_on_conic,
-)
+from .calibration import (MAPPING_TERMS, Calibration, calibrate_joint, calibrate_joint_conic,
+                          calibrate_wire, calibration_warnings, fit_gaze_mapping, fit_glint_flux,
+                          identify_on_conic, reidentify_on_conic)
 from .capture import is_capture_folder
 from .checks import load_json
 from .cornea import check_conic
 from .formats import atomic_write
-from .gaze import fit_cornea_centers
+from .gaze import calibrated_lights, fit_cornea_centers
 from .glints import NO_BAND, detect_glints
 from .lens import ideal_setup
 from .inputs import (
@@ -225,7 +217,8 @@ def calibration_glints(folder, setup: Setup) -> tuple[Setup, CalibrationGlints]:
                                         tuple(detected), np.array(fluxes))
 
 
-def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere") -> Calibration:
+def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere",
+                          light_model: str = "points") -> Calibration:
     """Calibrate from a folder of single-pulse calibration frames (targets in labels.jsonl).
 
     Lighting pose, corneal radius, eye centre and orbit radius are fitted at once
@@ -236,13 +229,14 @@ def calibrate_from_folder(folder, setup: Setup, *, cornea_model: str = "sphere")
     (:func:`estimator.calibration.calibrate_joint_conic`) and records it in the file. The
     calibration also records each light's power for the glints' expected flux
     (``glint_flux``, :func:`calibrate_glint_flux`: the tracker's check for glints cut by a
-    lash), a conic's from the glints identified on the calibrated conic.
+    lash), a conic's from the glints identified on the calibrated conic. ``light_model``: as
+    :func:`calibrate_from_glints` (``"wire_mirror"``: the wire turns' moving virtual sources).
     """
     check_conic(cornea_model, 0.0)
     cal_setup, cg = calibration_glints(folder, setup)
     total = len(read_targets(folder))
     cal = calibrate_from_glints(cal_setup, cg.glints_px, cg.targets_m, frames_total=total,
-                                cornea_model=cornea_model)
+                                cornea_model=cornea_model, light_model=light_model)
     glints, flux = cg.glints_px, cg.flux
     if cornea_model == "conic":
         # The spherical matcher's identities of oblique glints are wrong on a conic cornea:
@@ -291,17 +285,19 @@ def calibrate_glint_flux(setup: Setup, calibration: Calibration, glints_px, flux
     conic = {"asphericity": calibration.cornea_asphericity,
              "eye_center_m": calibration.eye_center_m} if calibration.conic else {}
     return fit_glint_flux(setup.camera, calibration.cornea_radius_m,
-                          calibration.lights_world_m(setup.lights_world_m), c, glints_px,
+                          calibrated_lights(setup, calibration), c, glints_px,
                           flux, float(calibration.quality.get("rms_px", np.nan)), **conic)
 
 
 def calibrate_from_glints(setup: Setup, glints_px, targets_m, *,
-                          frames_total: int | None = None,
-                          cornea_model: str = "sphere") -> Calibration:
+                          frames_total: int | None = None, cornea_model: str = "sphere",
+                          light_model: str = "points") -> Calibration:
     """:func:`calibrate_from_folder` on identified glints: (m, n, 2) px (NaN: not seen) of
     ``setup``'s lights with the eye fixating (m, 3) ``targets_m`` (the feature-level
     simulator's glints, or a folder's). ``frames_total``: the frames there were (default m).
-    ``cornea_model``: ``"sphere"`` (the paper's) or ``"conic"`` (Q calibrated too)."""
+    ``cornea_model``: ``"sphere"`` (the paper's) or ``"conic"`` (Q calibrated too).
+    ``light_model``: ``"points"`` or ``"wire_mirror"`` (the wire turns' virtual sources, fitted
+    from the point fit's answer: :func:`estimator.calibration.calibrate_wire`)."""
     check_conic(cornea_model, 0.0)
     glints_px = np.asarray(glints_px, dtype=np.float64)
     used = glints_px.shape[0]
@@ -312,11 +308,13 @@ def calibrate_from_glints(setup: Setup, glints_px, targets_m, *,
         lighting, orbit, q = calibrate_joint_conic(setup.camera, setup.lights_world_m, glints_px,
                                                    targets_m, mask, center0_m=center0)
         cal = replace(Calibration.from_fits(lighting, orbit), cornea_model="conic",
-                      cornea_asphericity=q)
+                      cornea_asphericity=q, light_model=light_model)
     else:
         lighting, orbit = calibrate_joint(setup.camera, setup.lights_world_m, glints_px,
                                           targets_m, mask, center0_m=center0)
-        cal = Calibration.from_fits(lighting, orbit)
+        if light_model == "wire_mirror":
+            lighting, orbit = calibrate_wire(setup, glints_px, targets_m, mask, (lighting, orbit))
+        cal = replace(Calibration.from_fits(lighting, orbit), light_model=light_model)
     cal = cal.with_quality(
         rms_px=float(lighting.rms_px), frames_used=used, frames_total=total,
         warnings=calibration_warnings(lighting, orbit, frames_used=used, frames_total=total))

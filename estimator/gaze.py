@@ -39,8 +39,10 @@ from .cornea import (
     fit_cornea,
     fit_cornea_conic,
     fit_covariance,
+    refit_on_wire,
 )
 from .eye import gaze_direction
+from .geometry.wire_fast import WireLights
 from .reasons import Reason
 
 #: The optical axis does not reach the screen plane (it points away from it).
@@ -114,21 +116,50 @@ class CalibratedProblems:
 
     center: FitProblem
     orbit: FitProblem | None
+    wire: WireLights | None = None
 
 
 def calibrated_problems(setup, calibration: Calibration) -> CalibratedProblems:
     """The :class:`CalibratedProblems` of ``calibration`` on ``setup``."""
-    center = FitProblem(setup.camera, calibration.lights_world_m(setup.lights_world_m),
-                        calibration.cornea_radius_m)
-    orbit = orbit_problem(setup, calibration) if calibration.has_orbit else None
-    return CalibratedProblems(center, orbit)
+    wire = wire_lights(setup, calibration)
+    lights = calibrated_lights(setup, calibration, wire)
+    center = FitProblem(setup.camera, lights, calibration.cornea_radius_m)
+    orbit = orbit_problem(setup, calibration, lights) if calibration.has_orbit else None
+    return CalibratedProblems(center, orbit, wire)
 
 
-def orbit_problem(setup, calibration: Calibration) -> FitProblem:
-    """The calibrated ``"orbit"`` fit problem: corrected lights, r_c, c_e and r_co."""
+def wire_lights(setup, calibration: Calibration) -> WireLights | None:
+    """The calibrated wire mirror's virtual sources when ``calibration.light_model`` is
+    ``"wire_mirror"`` (the fits then refine the point-source answer on them:
+    :func:`estimator.cornea.refit_on_wire`), else None."""
+    if calibration.light_model != "wire_mirror":
+        return None
+    return WireLights.from_setup(setup, calibration.lighting_correction)
+
+
+def calibrated_lights(setup, calibration: Calibration, wire: WireLights | None = None) -> np.ndarray:
+    """(n, 3) the point lights of the point-source fits and of the matcher: the calibrated
+    lights; for a ``"wire_mirror"`` calibration each turn's virtual source at the calibrated
+    eye's primary gaze (the highlights' fixed part, so that identification and the point fit
+    that starts the wire fit see only the part that moves with the eye: 0.5-1.2 px RMS on
+    prototype_ov5647_wire, against 1.5-2.2 px of fixed offset at the turns' axes)."""
+    if calibration.light_model != "wire_mirror":
+        return calibration.lights_world_m(setup.lights_world_m)
+    wire = wire_lights(setup, calibration) if wire is None else wire
+    if calibration.has_orbit:
+        c = calibration.eye_center_m + calibration.orbit_radius_m * gaze_direction(0.0, 0.0)
+    else:
+        c = calibration.lighting_correction.apply(setup.eye.cornea_center(0.0, 0.0))
+    W, ok = wire.sources(np.reshape(c, (1, 3)), calibration.cornea_radius_m)
+    return np.where(ok[0][:, None] & np.isfinite(W[0]), W[0], wire.points_m)
+
+
+def orbit_problem(setup, calibration: Calibration, lights=None) -> FitProblem:
+    """The calibrated ``"orbit"`` fit problem: corrected lights (:func:`calibrated_lights`, or
+    ``lights`` (n, 3) when the caller has them), r_c, c_e and r_co."""
     if not calibration.has_orbit:
         raise ValueError("the orbit model needs a calibration with the eye centre and orbit radius")
-    return FitProblem(setup.camera, calibration.lights_world_m(setup.lights_world_m),
+    return FitProblem(setup.camera, calibrated_lights(setup, calibration) if lights is None else lights,
                       calibration.cornea_radius_m, calibration.eye_center_m,
                       calibration.orbit_radius_m)
 
@@ -177,9 +208,17 @@ def conic_of(calibration: Calibration):
 
 
 def _fit(problem, glints_px, mask, start, model, solver, chain, lower, upper, max_iter,
-         prior_mean=None, prior_information=None, conic=None):
+         prior_mean=None, prior_information=None, conic=None, wire=None):
     """fit_cornea over a batch, from a shared start or chained sample to sample; with
-    ``conic`` = (Q, c_e), :func:`estimator.cornea.fit_cornea_conic` instead."""
+    ``conic`` = (Q, c_e), :func:`estimator.cornea.fit_cornea_conic` instead; with ``wire``
+    (:class:`WireLights`), refined on the virtual sources."""
+    if wire is not None:
+        point = _fit(problem, glints_px, mask, start, model, solver, chain, lower, upper,
+                     max_iter, prior_mean, prior_information, conic)
+        glints = np.asarray(glints_px, dtype=np.float64).reshape(-1, wire.count, 2)
+        m = np.isfinite(glints).all(axis=-1) if mask is None else np.asarray(mask, bool).reshape(glints.shape[:2])
+        return refit_on_wire(problem, wire, glints, m, point, model, start, lower=lower,
+                             upper=upper, prior_mean=prior_mean, prior_information=prior_information)
     fit = fit_cornea if conic is None else partial(
         fit_cornea_conic, asphericity=conic[0], eye_center_m=conic[1],
         conic_start=conic[2] if len(conic) > 2 else None)
@@ -254,15 +293,16 @@ def _batch(glints_px) -> int:
     return 1 if np.ndim(glints_px) == 2 else int(np.shape(glints_px)[0])
 
 
-def _orbit_fit(problem, glints_px, mask, start, chain, solver, max_iter, prior, conic=None):
+def _orbit_fit(problem, glints_px, mask, start, chain, solver, max_iter, prior, conic=None,
+               wire=None):
     lim = np.full(2, ANGLE_BOUND_RAD)
     if prior is None:
         return _fit(problem, glints_px, mask, start, "orbit", solver, chain, -lim, lim, max_iter,
-                    conic=conic)
+                    conic=conic, wire=wire)
     mean, info, present = prior
     x0 = np.where(present[:, None], mean, np.broadcast_to(np.asarray(start, np.float64), mean.shape))
     return _fit(problem, glints_px, mask, x0, "orbit", solver, False, -lim, lim, max_iter,
-                prior_mean=mean, prior_information=info, conic=conic)
+                prior_mean=mean, prior_information=info, conic=conic, wire=wire)
 
 
 def geometric_gaze(setup, calibration: Calibration, glints_px, mask=None, *, start=(0.0, 0.0),
@@ -303,8 +343,9 @@ def geometric_gaze(setup, calibration: Calibration, glints_px, mask=None, *, sta
         raise ValueError("geometric gaze needs a calibration with the eye centre and orbit radius")
     problem = orbit_problem(setup, calibration) if problems is None else problems.orbit
     prior = _prior_args(prior_mean_rad, prior_cov_rad2, noise_px, _batch(glints_px))
+    wire = wire_lights(setup, calibration) if problems is None else problems.wire
     fit = _orbit_fit(problem, glints_px, mask, start, chain, solver, max_iter, prior,
-                     conic_of(calibration))
+                     conic_of(calibration), wire)
     points, hits = screen_intersection(calibration.eye_center_m,
                                        gaze_direction(fit.angles_rad[:, 0], fit.angles_rad[:, 1]),
                                        setup.screen.z_m)
@@ -335,7 +376,7 @@ def fit_cornea_centers(setup, calibration: Calibration, glints_px, mask=None, *,
         return _fit(problems.orbit, glints_px, mask, (0.0, 0.0), "orbit", solver, False, -lim,
                     lim, max_iter, conic=conic)
     return _fit(problems.center, glints_px, mask, x0, "center", solver, chain, None, None,
-                max_iter, conic=conic)
+                max_iter, conic=conic, wire=problems.wire)
 
 
 def polynomial_gaze(setup, calibration: Calibration, glints_px, mask=None, *, mapping="eq1_25",
@@ -376,7 +417,8 @@ def polynomial_gaze(setup, calibration: Calibration, glints_px, mask=None, *, ma
         orbit = orbit_problem(setup, calibration) if problems is None else problems.orbit
         fit = _merge(prior[2],
                      _orbit_fit(orbit, glints_px, mask, (0.0, 0.0), False, solver, max_iter,
-                                prior, conic_of(calibration)),
+                                prior, conic_of(calibration),
+                                wire_lights(setup, calibration) if problems is None else problems.wire),
                      fit_cornea_centers(setup, calibration, glints_px, mask, start=start,
                                         chain=chain, solver=solver, max_iter=max_iter,
                                         problems=problems))

@@ -176,7 +176,8 @@ def cmd_calibrate(args) -> int:
 
     refuse_overwriting_inputs(args.out, input_files(args.dir))
     setup = with_camera_file(folder_scene(args.dir, args.scene, "scet calibrate"), args.camera)
-    cal = calibrate_from_folder(args.dir, setup, cornea_model=args.cornea_model)
+    cal = calibrate_from_folder(args.dir, setup, cornea_model=args.cornea_model,
+                                light_model=args.light_model)
     path = save_calibration(cal, args.out)
     q = cal.quality
     conic = f"conic cornea Q = {cal.cornea_asphericity:.4f}, " if cal.conic else ""
@@ -390,6 +391,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the tracker's cornea: the paper's sphere (default), or a conic about "
                         "the optical axis whose conic constant Q is calibrated too (recorded in "
                         "the file; scet track then tracks with it)")
+    p.add_argument("--light-model", choices=("points", "wire_mirror"), default="points",
+                   help="wire_mirror: a wire_mirror light group's glints are the LED's "
+                        "highlights on the turns, which move with the cornea (recorded in the "
+                        "file; scet track then fits them); default: fixed point lights")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser("track", help="track a folder of banded frames: one gaze sample per lit band")

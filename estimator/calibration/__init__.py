@@ -3,7 +3,8 @@ radius, the gaze mappings, and the calibration file.
 
 Modules: ``lighting``, ``conic`` (the joint fit with the conic constant Q, and identification
 on the calibrated conic), ``orbit``, ``mapping`` (Eq. (1) and the second-order polynomials),
-``result`` (:class:`Calibration`, versioned JSON), ``checks`` (is a calibration plausible).
+``result`` (:class:`Calibration`, versioned JSON), ``checks`` (is a calibration plausible),
+``wire`` (the joint fit on a wire mirror's moving virtual sources).
 """
 
 from .checks import (
@@ -32,7 +33,8 @@ from .lighting import (
 from .flux import FRESNEL_MODELS, GlintFlux, fit_glint_flux, model_flux
 from .mapping import MAPPING_TERMS, RANK_RTOL, GazeMapping, distance_reading, fit_gaze_mapping
 from .orbit import ORBIT_RADIUS_BOUNDS_M, OrbitFit, orbit_law_of_sines, orbit_sphere_fit
-from .result import Calibration
+from .result import LIGHT_MODELS, Calibration
+from .wire import calibrate_joint_wire, calibrate_wire
 
 __all__ = [
     "RADIUS_SD_RANGE", "POSE_SHARE", "MAX_RMS_PX", "MIN_FRAMES_SHARE", "AT_BOUND_RTOL",
@@ -44,5 +46,5 @@ __all__ = [
     "orbit_law_of_sines", "orbit_sphere_fit", "Calibration", "Q_BOUNDS", "calibrate_joint_conic",
     "IDENTIFY_ROUNDS", "CROWDED_RMS", "identify_on_conic", "prediction_sd_px",
     "reidentify_on_conic", "FRESNEL_MODELS", "GlintFlux", "fit_glint_flux",
-    "model_flux",
+    "model_flux", "LIGHT_MODELS", "calibrate_joint_wire", "calibrate_wire",
 ]

@@ -47,6 +47,8 @@ from .orbit import OrbitFit
 #: 6.7-9.4 mm, Read et al.; a value in millimetres under the ``_m`` key is refused), an orbit
 #: radius under 50 mm, an eye centre within 10 m of the world origin and a lighting correction
 #: of under a metre.
+#: How the estimators model the lights (:attr:`Calibration.light_model`).
+LIGHT_MODELS = ("points", "wire_mirror")
 FILE_RANGES = {"cornea_radius_m": (1e-3, 0.05), "orbit_radius_m": (0.0, 0.05),
                "eye_center_m": 10.0, "translation_m": 1.0}
 
@@ -82,6 +84,11 @@ class Calibration:
     glint_flux : GlintFlux or None
         Each light's power for the glints' expected flux (:mod:`estimator.calibration.flux`),
         the tracker's check for glints cut by a lash; None (old files) turns it off.
+    light_model : {"points", "wire_mirror"}
+        How the estimators model a ``wire_mirror`` light group's turns: fixed point lights (the
+        paper's), or the LED's highlights on the turns, which move with the cornea
+        (:mod:`estimator.cornea.wire`; the lighting pose then moves the mirror and its LED).
+        Written to the file only when ``"wire_mirror"``.
     """
 
     lighting_correction: RigidPose = field(default_factory=RigidPose)
@@ -94,8 +101,14 @@ class Calibration:
     cornea_model: str = "sphere"
     cornea_asphericity: float = 0.0
     glint_flux: GlintFlux | None = None
+    light_model: str = "points"
 
     def __post_init__(self):
+        if self.light_model not in LIGHT_MODELS:
+            raise ValueError(f"light_model must be one of {LIGHT_MODELS}, got {self.light_model!r}")
+        if self.light_model == "wire_mirror" and self.cornea_model != "sphere":
+            raise ValueError("light_model 'wire_mirror' models the sphere's reflections; "
+                             f"cornea_model {self.cornea_model!r} is not supported with it")
         model, q = check_conic(self.cornea_model, self.cornea_asphericity)
         object.__setattr__(self, "cornea_model", model)
         object.__setattr__(self, "cornea_asphericity", q)
@@ -181,6 +194,7 @@ class Calibration:
             "methods": dict(self.methods),
             "quality": dict(self.quality),
             **({} if self.glint_flux is None else {"glint_flux": self.glint_flux.to_dict()}),
+            **({} if self.light_model == "points" else {"light_model": self.light_model}),
         }
 
     @classmethod
@@ -234,8 +248,9 @@ class Calibration:
             raise doc.error("eye_center_m", "a 'conic' cornea_model needs the eye centre")
         flux = doc.obj("glint_flux", required=False)
         flux = GlintFlux.from_dict(flux) if flux is not None else None
+        lights = doc.string("light_model", choices=LIGHT_MODELS, required=False, default="points")
         return cls(pose, radius, center, r_co, mappings, methods.data if methods else {},
-                   quality.data if quality else {}, model, q, flux)
+                   quality.data if quality else {}, model, q, flux, lights)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=1)

@@ -95,6 +95,8 @@ class GlintMatcher(HypothesisSearch):
     problem : FitProblem, optional
         The calibration's ``"orbit"`` problem when the caller has built it already
         (:func:`estimator.gaze.calibrated_problems`); it must be the one ``calibration`` gives.
+        Its lights are then the matcher's (for a ``"wire_mirror"`` calibration, the turns'
+        virtual sources at primary gaze: :func:`estimator.gaze.calibrated_lights`).
     """
 
     def __init__(self, setup: Setup, params: MatchParams = MatchParams(), *,
@@ -104,8 +106,9 @@ class GlintMatcher(HypothesisSearch):
         self.eye = calibrated_eye(setup.eye, calibration)
         eye = self.eye
         nominal = np.asarray(setup.lights_world_m, dtype=np.float64)
-        self.lights_world_m = np.ascontiguousarray(nominal if calibration is None
-                                                   else calibration.lights_world_m(nominal))
+        self.lights_world_m = (np.array(problem.lights_world_m) if problem is not None else
+                               np.ascontiguousarray(nominal if calibration is None
+                                                    else calibration.lights_world_m(nominal)))
         #: The camera as the compiled kernels take it (:func:`estimator.geometry.camera_arrays`).
         self.arrays = camera_arrays(setup.camera)
         self.group = np.asarray(setup.lights.group_index)

@@ -89,8 +89,10 @@ class BandContext:
     def fast_fits(self) -> bool:
         """Whether identified glints are fitted by the compiled small fit first
         (:mod:`estimator.tracking.estimates`): the cheap path, the matcher's compiled steps
-        (:data:`estimator.matching.kernels.ENABLED`, read now) and a spherical cornea."""
-        return self.follower is not None and match_kernels.ENABLED and not self.calibration.conic
+        (:data:`estimator.matching.kernels.ENABLED`, read now), a spherical cornea and point lights
+        (a ``"wire_mirror"`` calibration's virtual sources take the batched fits)."""
+        return (self.follower is not None and match_kernels.ENABLED and not self.calibration.conic
+                and self.calibration.light_model == "points")
 
     @property
     def orbit(self):

@@ -1,0 +1,167 @@
+"""The tracker's accuracy on the wire mirror's glints, three ways (issue 35, part 3), for
+``scet study wire``:
+
+* **(a) point sources at the nominal pose**: the scene's point lights (each turn's axis at
+  mid-width) where the 3D model puts them; r_c, c_e and r_co fitted to the calibration frames
+  with the lighting pose held (:func:`estimator.calibration.calibrate_joint` with bounds of
+  1e-12 rad and m on the pose);
+* **(b) calibrated lighting pose**: the same point lights, the pose fitted too (the default
+  calibration, :func:`estimator.folders.calibrate_from_glints`);
+* **(c) virtual sources**: ``light_model = "wire_mirror"`` (:mod:`estimator.cornea.wire`), the
+  calibration fitting the mirror's pose on the highlights' glints.
+
+Each calibrates on the 5 x 5 pattern's glints and runs both gaze methods on the test glints;
+the glints are the two-bounce solver's (feature level, noise-free) or centroids measured in
+renders (``benchmarks/bench_wire_track.py`` writes them to ``reports/wire_mirror_rendered.npz``,
+:data:`RENDERED_FORMAT`). Samples/s: the gaze call over the test samples, on this machine, with
+every seen glint and (geometric) with :data:`BAND_GLINTS` of them a sample, as a band holds.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+RENDERED_FORMAT = "scet-wire-rendered-glints"
+RENDERED_VERSION = 1
+#: The rows of the tables, in order: key, label.
+MODELS = (("nominal", "(a) point sources, nominal pose"),
+          ("calibrated", "(b) point sources, calibrated pose"),
+          ("option", "(c) virtual sources (light_model wire_mirror)"))
+#: Glints of a band for the cost column: 16 pulses over 786 lines light bands of ~30 rows, which
+#: hold 2-6 of the prototype's glints.
+BAND_GLINTS = 4
+#: Pose bounds that hold the lighting at its nominal pose in (a) (rad, m): TRF needs lo < hi.
+HELD = 1e-12
+
+
+def _calibrate(setup, model, glints, targets):
+    from estimator.calibration import Calibration, calibrate_joint, calibration_warnings
+    from estimator.folders import calibrate_from_glints, fit_supported_mappings
+    from estimator.gaze import fit_cornea_centers
+
+    if model != "nominal":
+        return calibrate_from_glints(setup, glints, targets,
+                                     light_model="wire_mirror" if model == "option" else "points")
+    mask = np.isfinite(glints).all(axis=-1)
+    light, orbit = calibrate_joint(setup.camera, setup.lights_world_m, glints, targets, mask,
+                                   center0_m=setup.eye.cornea_center(0.0, 0.0),
+                                   rotation_bound_rad=HELD, translation_bound_m=HELD)
+    cal = Calibration.from_fits(light, orbit).with_quality(
+        rms_px=float(light.rms_px), frames_used=len(targets), frames_total=len(targets),
+        warnings=calibration_warnings(light, orbit, frames_used=len(targets), frames_total=len(targets)))
+    c = fit_cornea_centers(setup, cal, glints, mask)
+    maps, _ = fit_supported_mappings(c.center_m[c.ok], np.asarray(targets)[c.ok])
+    return cal.with_mappings(**maps)
+
+
+def accuracy_table(setup, cal_glints, cal_targets, glints, targets) -> dict:
+    """{model: {"calibration": Calibration, "rms_px", method: {"errors_deg" (m,), "samples_per_s"}}}
+    for the :data:`MODELS` (module docstring); glints (m, n, 2) NaN where not seen."""
+    from estimator.gaze import calibrated_problems, geometric_gaze, polynomial_gaze
+    from estimator.metrics import angular_error_deg
+
+    out = {}
+    for model, _ in MODELS:
+        cal = _calibrate(setup, model, cal_glints, cal_targets)
+        problems = calibrated_problems(setup, cal)
+        mapping = sorted(k for k in cal.mappings if k.startswith("eq1"))[-1]
+        row = {"calibration": cal, "rms_px": float(cal.quality["rms_px"])}
+        for method in ("geometric", "polynomial"):
+            t0 = time.perf_counter()
+            if method == "polynomial":
+                est = polynomial_gaze(setup, cal, glints, mapping=mapping, problems=problems)
+            else:
+                est = geometric_gaze(setup, cal, glints, problems=problems)
+            dt = time.perf_counter() - t0
+            err = angular_error_deg(est.point_m, targets, setup.eye.rotation_center_m)
+            row[method] = {"errors_deg": err, "samples_per_s": len(targets) / dt}
+        few = band_glints(glints)
+        t0 = time.perf_counter()
+        geometric_gaze(setup, cal, few, problems=problems)
+        row["band_samples_per_s"] = len(targets) / (time.perf_counter() - t0)
+        out[model] = row
+    return out
+
+
+def band_glints(glints, k: int = BAND_GLINTS, seed: int = 0):
+    """``glints`` (m, n, 2) cut to ``k`` seen glints a sample, chosen at random (seeded): the
+    few glints a band holds."""
+    rng = np.random.default_rng(seed)
+    out = np.full_like(glints, np.nan)
+    for i, g in enumerate(glints):
+        seen = np.flatnonzero(np.isfinite(g).all(axis=-1))
+        keep = rng.choice(seen, min(k, seen.size), replace=False)
+        out[i, keep] = g[keep]
+    return out
+
+
+def load_rendered(path) -> dict | None:
+    """The rendered centroids of ``benchmarks/bench_wire_track.py``, or None where ``path`` does
+    not exist; ValueError naming the file and key for another format or version."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    with np.load(path, allow_pickle=False) as z:
+        d = {k: z[k] for k in z.files}
+    if str(d.get("format", "")) != RENDERED_FORMAT:
+        raise ValueError(f"{path}: format: expected {RENDERED_FORMAT!r}, got {d.get('format')!r}")
+    if int(d.get("version", -1)) != RENDERED_VERSION:
+        raise ValueError(f"{path}: version: expected {RENDERED_VERSION}, got {d.get('version')!r}")
+    for k in ("calibration_targets_m", "calibration_centroids_px", "test_targets_m", "test_centroids_px"):
+        if k not in d:
+            raise ValueError(f"{path}: {k}: missing")
+    return d
+
+
+def rendered_accuracy(setup, rendered: dict) -> dict:
+    """:func:`accuracy_table` on rendered centroids, plus their error against the labels (the
+    solver's glints averaged over the LED's disk) and those labels' offset from the LED
+    centre's glints (the point the option models)."""
+    table = accuracy_table(setup, rendered["calibration_centroids_px"], rendered["calibration_targets_m"],
+                           rendered["test_centroids_px"], rendered["test_targets_m"])
+    d = np.concatenate([np.linalg.norm(rendered[f"{k}_centroids_px"] - rendered[f"{k}_labels_px"], axis=-1).ravel()
+                        for k in ("calibration", "test")])
+    d = d[np.isfinite(d)]
+    from ..simulate import ground_truth_glints
+
+    shift = []
+    for k in ("calibration", "test"):
+        g, v, _ = ground_truth_glints(setup, *setup.eye.angles_toward(rendered[f"{k}_targets_m"]))
+        shift.append(np.linalg.norm(np.where(v[..., None], g, np.nan) - rendered[f"{k}_labels_px"], axis=-1).ravel())
+    shift = np.concatenate(shift)
+    return {"table": table, "centroid_error_px": d, "disk_shift_px": shift[np.isfinite(shift)], "spp": int(rendered["spp"]),
+            "led_mm": 1e3 * float(rendered["led_m"]), "frames": (len(rendered["calibration_targets_m"]),
+                                                                 len(rendered["test_targets_m"])),
+            "seconds": float(np.sum(rendered["calibration_seconds"]) + np.sum(rendered["test_seconds"]))}
+
+
+def _f(x, fmt="{:.3f}"):
+    return "-" if not np.isfinite(x) else fmt.format(x)
+
+
+def table_lines(table: dict, ideal: dict | None = None) -> list[str]:
+    """Markdown rows of an :func:`accuracy_table` (and the point-source ideal's, if given)."""
+    lines = ["| glints / model | method | median deg | mean deg | max deg | valid | calib RMS px | samples/s "
+             f"| samples/s, {BAND_GLINTS} glints |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    rows = ([("ideal", "point-source glints (the model's ideal), (b)", ideal)] if ideal else []) + \
+        [(k, label, table[k]) for k, label in MODELS]
+    for _, label, r in rows:
+        for method in ("geometric", "polynomial"):
+            e = r[method]["errors_deg"]
+            ok = np.isfinite(e)
+            med, mean, mx = ((np.median(e[ok]), e[ok].mean(), e[ok].max()) if ok.any()
+                             else (np.nan,) * 3)
+            lines.append(f"| {label} | {method} | {_f(med)} | {_f(mean)} | {_f(mx)} | "
+                         f"{100 * ok.mean():.0f} % | {_f(r['rms_px'])} | {r[method]['samples_per_s']:.0f} | "
+                         + (f"{r['band_samples_per_s']:.0f} |" if method == "geometric" and
+                            "band_samples_per_s" in r else "- |"))
+    return lines
+
+
+__all__ = ["accuracy_table", "band_glints", "BAND_GLINTS", "rendered_accuracy", "load_rendered", "table_lines", "MODELS",
+           "RENDERED_FORMAT", "RENDERED_VERSION"]
+
