@@ -177,6 +177,12 @@ def cmd_calibrate(args) -> int:
     refuse_overwriting_inputs(args.out, input_files(args.dir))
     setup = with_camera_file(folder_scene(args.dir, args.scene, "scet calibrate"), args.camera)
     cal = calibrate_from_folder(args.dir, setup, cornea_model=args.cornea_model)
+    if args.camera is not None:  # which lens the glints were undistorted through (issue 30)
+        from dataclasses import replace
+
+        from estimator.lens import camera_file_record
+
+        cal = replace(cal, camera_file=camera_file_record(args.camera))
     path = save_calibration(cal, args.out)
     q = cal.quality
     conic = f"conic cornea Q = {cal.cornea_asphericity:.4f}, " if cal.conic else ""
@@ -203,7 +209,7 @@ def cmd_compare(args) -> int:
     from .compare import compare_capture
     from .compare.report import write_report
 
-    setup = folder_scene(args.dir, args.scene, "scet compare")
+    setup = with_camera_file(folder_scene(args.dir, args.scene, "scet compare"), args.camera)
     cal = load_calibration(args.calibration) if args.calibration is not None else None
     bars = StageBars()
     try:
@@ -212,6 +218,10 @@ def cmd_compare(args) -> int:
                                  seed=args.seed, progress=bars.update)
     finally:
         bars.close()
+    if args.camera is not None:
+        result.notes.append(f"camera file {args.camera}: its intrinsics and lens distortion "
+                            "replace the scene's; the capture's detections are undistorted "
+                            "and the render is made through the same lens")
     path = write_report(result, args.report_dir)
     if args.json is not None:
         atomic_write(args.json, json.dumps(result.to_dict(), indent=1, allow_nan=False,
@@ -228,8 +238,14 @@ def cmd_track(args) -> int:
     from estimator.folders import track_folder
     from estimator.live import track_following
 
+    from estimator.folders import load_calibration
+    from estimator.lens import check_camera_record
+
     setup = with_camera_file(folder_scene(args.dir, args.scene, "scet track"), args.camera)
     cal = args.calibration  # the path: --out naming it is refused, errors name it
+    warning = check_camera_record(load_calibration(cal).camera_file, args.camera, cal)
+    if warning:
+        print(f"warning: {warning}", file=sys.stderr)
     bar, update = progress_bar(0, "frame", "track")
     try:
         if args.follow:
@@ -426,6 +442,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", type=Path, help="calibration file (default: the scene's "
                                                      "nominal geometry)")
     p.add_argument("--method", choices=("polynomial", "geometric"), default="geometric")
+    camera_arg(p)
     p.add_argument("--report-dir", type=Path, default=Path("reports"),
                    help="where compare.md and its figures (compare/) go (default reports/)")
     p.add_argument("--frames", type=integer(1, 1000), default=8, help="banded frames compared")

@@ -82,6 +82,11 @@ class Calibration:
     glint_flux : GlintFlux or None
         Each light's power for the glints' expected flux (:mod:`estimator.calibration.flux`),
         the tracker's check for glints cut by a lash; None (old files) turns it off.
+    camera_file : dict or None
+        The camera file (``scet calibrate --camera``) the glints were undistorted through:
+        ``{"path": str, "sha256": str}`` (:func:`estimator.lens.camera_file_record`); None:
+        the scene's own camera. ``scet track`` refuses another camera file
+        (:func:`estimator.lens.check_camera_record`).
     """
 
     lighting_correction: RigidPose = field(default_factory=RigidPose)
@@ -94,6 +99,7 @@ class Calibration:
     cornea_model: str = "sphere"
     cornea_asphericity: float = 0.0
     glint_flux: GlintFlux | None = None
+    camera_file: dict | None = None
 
     def __post_init__(self):
         model, q = check_conic(self.cornea_model, self.cornea_asphericity)
@@ -181,6 +187,7 @@ class Calibration:
             "methods": dict(self.methods),
             "quality": dict(self.quality),
             **({} if self.glint_flux is None else {"glint_flux": self.glint_flux.to_dict()}),
+            **({} if self.camera_file is None else {"camera_file": dict(self.camera_file)}),
         }
 
     @classmethod
@@ -234,8 +241,14 @@ class Calibration:
             raise doc.error("eye_center_m", "a 'conic' cornea_model needs the eye centre")
         flux = doc.obj("glint_flux", required=False)
         flux = GlintFlux.from_dict(flux) if flux is not None else None
+        cam = doc.obj("camera_file", required=False)
+        if cam is not None:
+            digest = cam.string("sha256")
+            if len(digest) != 64 or any(c not in "0123456789abcdef" for c in digest):
+                raise cam.error("sha256", "expected 64 lower-case hex digits (SHA-256)")
+            cam = {"path": cam.string("path"), "sha256": digest}
         return cls(pose, radius, center, r_co, mappings, methods.data if methods else {},
-                   quality.data if quality else {}, model, q, flux)
+                   quality.data if quality else {}, model, q, flux, cam)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=1)
