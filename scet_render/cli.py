@@ -166,7 +166,9 @@ def cmd_export_mitsuba(args) -> int:
     options = SceneOptions(channels="grey", cornea=args.cornea)
     path = export_mitsuba(setup, args.out, options, yaw_rad=np.radians(args.yaw_deg),
                           pitch_rad=np.radians(args.pitch_deg), spp=args.spp)
-    print(f"Mitsuba scene written to {path} (render it with: mitsuba {path})")
+    print(f"Mitsuba scene written to {path} (render it with: mitsuba {path})"
+          + (f"; it renders the undistorted image, the lens distortion is in "
+             f"{path.parent / 'camera.json'}" if setup.camera.has_distortion else ""))
     return 0
 
 

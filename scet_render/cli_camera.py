@@ -78,8 +78,9 @@ def add_parsers(sub) -> None:
                                           "and board.json)")
     p.add_argument("--out", type=Path, required=True, help="camera file (camera.json)")
     p.add_argument("--board", type=Path, help="board.json of the printed board (default: DIR's "
-                                              "board.json, else scet hardware board's default, "
-                                              "11x8 of 2.5 mm)")
+                                              "board.json, else 11x8 squares of 2.5 mm; "
+                                              "scet hardware board sizes its board to a "
+                                              "scene's field: give its board.json)")
     p.add_argument("--model", choices=("opencv5", "rational8"), default="opencv5",
                    help="distortion model: k1 k2 p1 p2 k3 (default) or the rational model's 8")
     p.add_argument("--min-views", type=integer(3, 10_000), default=8,

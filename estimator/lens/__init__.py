@@ -17,8 +17,9 @@ from .camera_file import (CAMERA_FORMAT, CAMERA_VERSION, CameraFile, CameraFileE
                           ideal_setup, pinhole_of, read_camera_file, write_camera_file)
 
 __all__ = ["BOARD_FORMAT", "BOARD_VERSION", "DEFAULT_BOARD", "DICTIONARIES", "BoardError",
-           "BoardSpec", "board_for_setup", "read_board", "working_distance_m", "write_board", "CalibrationError", "calibrate_from_folder",
-           "calibrate_views", "detect_board", "CAMERA_FORMAT", "CAMERA_VERSION", "CameraFile",
-           "CameraFileError", "camera_file_record", "camera_from_file", "check_camera_record",
-           "distortion_difference_px", "distortion_effect_px", "ideal_setup", "pinhole_of", "read_camera_file",
-           "write_camera_file"]
+           "BoardSpec", "board_for_setup", "read_board", "working_distance_m", "write_board",
+           "CalibrationError", "calibrate_from_folder", "calibrate_views", "detect_board",
+           "CAMERA_FORMAT", "CAMERA_VERSION", "CameraFile", "CameraFileError",
+           "camera_file_record", "camera_from_file", "check_camera_record",
+           "distortion_difference_px", "distortion_effect_px", "ideal_setup", "pinhole_of",
+           "read_camera_file", "write_camera_file"]
