@@ -1,8 +1,8 @@
 """`scet compare` on a blurred capture (issue 30): frames blurred by a 1.2 px Gaussian (a
 slightly defocused lens, the issue's measurement) are blamed on the optics, with the blur
-measured, not on timing or materials. paper_sim at 640x480 (at 320x240 the blurred bands no
-longer fit the timing model: 'the band model leaves 0.091 of a 0.096 modulation'), 3 frames
-(the drift needs 3), conductor cornea at 4 spp: ~50 s here."""
+measured, not on timing or materials. paper_sim at 640x480, 3 frames (the drift needs 3),
+conductor cornea at 4 spp: ~50 s here (the 320x240 capture of the same test is in
+test_compare.py)."""
 
 import shutil
 
@@ -20,8 +20,8 @@ from scet_render.compare import compare_capture  # noqa: E402
 from scet_render.dataset import render_dataset  # noqa: E402
 
 #: The blur of the issue's measurement (px), and how well it must be measured: the fit's
-#: bisection steps are 0.006 px; 1.22 px measured (the unperturbed capture reads +0.36-0.40,
-#: the replay path's own spread: scet_render/compare/verdict.py TOL["blur"]).
+#: bisection steps are 0.006 px; 1.22 px measured (the unperturbed 320x240 capture reads
+#: +0.12: scet_render/compare/verdict.py TOL["blur"]).
 BLUR_PX, BLUR_TOL_PX = 1.2, 0.3
 
 
