@@ -14,7 +14,8 @@ import numpy as np
 
 from .cli_data import add_cluster_arguments, add_dataset_parsers, add_render_parser
 from .cli_progress import StageBars, print_table, progress_bar
-from .cli_camera import add_parsers as add_camera_parsers, camera_arg, with_camera_file
+from .cli_camera import (add_parsers as add_camera_parsers, camera_arg, hold_to_camera_file,
+                         record_camera_file, with_camera_file)
 from .cli_scene import describe_lens, folder_scene
 from .runner import MAX_FRAMES, MAX_SEED, MAX_SPP, finite, integer, run
 
@@ -179,13 +180,7 @@ def cmd_calibrate(args) -> int:
     refuse_overwriting_inputs(args.out, input_files(args.dir))
     setup = with_camera_file(folder_scene(args.dir, args.scene, "scet calibrate"), args.camera)
     cal = calibrate_from_folder(args.dir, setup, cornea_model=args.cornea_model)
-    if args.camera is not None:  # which lens the glints were undistorted through (issue 30)
-        from dataclasses import replace
-
-        from estimator.lens import camera_file_record
-
-        cal = replace(cal, camera_file=camera_file_record(args.camera))
-    path = save_calibration(cal, args.out)
+    path = save_calibration(record_camera_file(cal, args.camera), args.out)
     q = cal.quality
     conic = f"conic cornea Q = {cal.cornea_asphericity:.4f}, " if cal.conic else ""
     print(f"calibration written to {path}: {conic}r_c = {cal.cornea_radius_m * 1e3:.3f} mm, "
@@ -240,14 +235,9 @@ def cmd_track(args) -> int:
     from estimator.folders import track_folder
     from estimator.live import track_following
 
-    from estimator.folders import load_calibration
-    from estimator.lens import check_camera_record
-
     setup = with_camera_file(folder_scene(args.dir, args.scene, "scet track"), args.camera)
     cal = args.calibration  # the path: --out naming it is refused, errors name it
-    warning = check_camera_record(load_calibration(cal).camera_file, args.camera, cal)
-    if warning:
-        print(f"warning: {warning}", file=sys.stderr)
+    hold_to_camera_file(cal, args.camera)
     bar, update = progress_bar(0, "frame", "track")
     try:
         if args.follow:
