@@ -45,7 +45,13 @@ def test_a_blurred_capture_is_blamed_on_the_optics(tmp_path):
     # or materials now.
     blamed = {x.quantity: x.cause for x in r.flagged}
     assert "optics" in blamed.values()
-    assert not {q for q, c in blamed.items() if c in ("timing", "material")}, blamed
+    # Clutter is left out: its count against the blurred render swings with the fitted blur
+    # by more than EXPLAINED_SHARE allows (measured on this capture, +21 a frame against the
+    # sharp render: +13.7, +8.3 and +14.7 against renders blurred by 1.22, 1.24 and 1.29 px),
+    # so whether it is blamed on the optics or on the material is chance here. At 320x240
+    # (test_compare.py) it is the optics'.
+    assert not {q for q, c in blamed.items() if c in ("timing", "material")
+                and not q.startswith("clutter")}, blamed
     assert any(q.startswith("pulse") for q in blamed), "the blur lengthens the measured pulse"
     assert all("blamed on the optics" in rows[q].note for q, c in blamed.items()
                if c == "optics" and not q.startswith("glint spot size"))
