@@ -130,3 +130,29 @@ def test_a_calibration_records_its_camera_file_and_track_holds_to_it(tmp_path, c
     assert main(["track", str(folder), "--scene", "paper_sim", "--calibration", str(plain),
                  "--out", str(tmp_path / "d.csv"), "--camera", str(lens)]) == 0
     assert "records no camera file" in capsys.readouterr().err
+
+
+def test_scet_run_holds_to_the_calibrations_camera_file(tmp_path, capsys):
+    """scet run refuses, before opening any camera, a camera file other than the one its
+    calibration was made with."""
+    from estimator.calibration import Calibration
+    from estimator.lens import camera_file_record
+    from estimator.scene import load_scene
+
+    def camera(path, k1):
+        path.write_text(json.dumps({"format": "scet-camera", "version": 1,
+                                    "image_size_px": [640, 480],
+                                    "K": [[1300.0, 0, 319.5], [0, 1300.0, 239.5], [0, 0, 1]],
+                                    "distortion": [k1, 0.0, 0.0, 0.0, 0.0]}))
+        return path
+
+    cal = tmp_path / "cal.json"
+    rec = camera_file_record(camera(tmp_path / "a.json", -0.1))
+    cal.write_text(Calibration.ground_truth(load_scene("paper_sim"), camera_file=rec).to_json())
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    assert main(["run", "--scene", "paper_sim", "--out", str(tmp_path / "cap"), "--calibration",
+                 str(cal), "--method", "geometric", "--samples", str(tmp_path / "s.csv"),
+                 "--replay", str(folder), "--camera", str(camera(tmp_path / "b.json", -0.2))]) == 2
+    _one_line_error(capsys, str(cal), "camera_file.sha256", "b.json")
+    assert not (tmp_path / "cap").exists()
