@@ -101,7 +101,22 @@ def _board(args) -> int:
               f"{args.squares!r}", file=sys.stderr)
         return 2
     try:
-        spec = BoardSpec(sx, sy, args.square_mm, args.marker_mm, args.dictionary)
+        square_mm, marker_mm = args.square_mm, args.marker_mm
+        fitted = ""
+        if square_mm is None:  # sized to the scene's field (estimator.lens.board_for_setup)
+            from estimator.lens import board_for_setup, working_distance_m
+            from estimator.scene import load_scene
+
+            setup = load_scene(args.scene)
+            square_mm = board_for_setup(setup, (sx, sy), args.dictionary).square_mm
+            cam = setup.camera
+            wd = working_distance_m(setup)
+            fitted = (f"; sized to {setup.name}'s field at its {wd * 1e3:.1f} mm working "
+                      f"distance ({wd * cam.width_px / cam.fx_px * 1e3:.1f} x "
+                      f"{wd * cam.height_px / cam.fy_px * 1e3:.1f} mm)")
+        if marker_mm is None:
+            marker_mm = round(0.75 * square_mm, 4)
+        spec = BoardSpec(sx, sy, square_mm, marker_mm, args.dictionary)
     except BoardError as exc:
         print(f"scet hardware board: error: {exc}", file=sys.stderr)
         return 2
@@ -110,7 +125,7 @@ def _board(args) -> int:
     print(f"board {sx}x{sy} squares of {spec.square_mm:g} mm ({w:g} x {h:g} mm, markers "
           f"{spec.marker_mm:g} mm, {spec.dictionary}, {spec.inner_corners} corners) written to "
           f"{out['svg']} and {out['pdf']} (page {out['page_mm'][0]:g} x {out['page_mm'][1]:g} "
-          f"mm: print at 100 %); description {out['json']}")
+          f"mm: print at 100 %); description {out['json']}{fitted}")
     return 0
 
 
@@ -271,13 +286,18 @@ def register(sub) -> None:
     p.add_argument("--thickness-mm", type=finite(0.01, 100.0), default=1.5)
     p.add_argument("--turns", type=integer(1, 10_000), default=35)
     p.add_argument("--wire-mm", type=finite(0.01, 100.0), default=0.8)
-    # The default board suits 3-4 cm and 640x480 (estimator/lens/board.py says why).
+    # The default board spans 60 % of the scene's field at its working distance
+    # (estimator/lens/board.py says why).
     p.add_argument("--squares", default="11x8", help="board: squares COLSxROWS (default 11x8)")
-    p.add_argument("--square-mm", type=finite(0.1, 1000.0), default=2.5,
-                   help="board: square side in mm (default 2.5: 46 px at 35 mm with the stock "
-                        "643 px lens)")
-    p.add_argument("--marker-mm", type=finite(0.1, 1000.0), default=1.8,
-                   help="board: marker side in mm (default 1.8)")
+    p.add_argument("--scene", default="prototype_ov5647",
+                   help="board: size the squares so the board spans 60 %% of this scene's field "
+                        "width at its working distance (default prototype_ov5647: 1.3 mm "
+                        "squares, 14.3 x 10.4 mm, in a 22.9 x 17.2 mm field at 23 mm)")
+    p.add_argument("--square-mm", type=finite(0.1, 1000.0), default=None,
+                   help="board: square side in mm (default: from --scene; 2.5 is "
+                        "scet camera calibrate's default board, for 35 mm)")
+    p.add_argument("--marker-mm", type=finite(0.1, 1000.0), default=None,
+                   help="board: marker side in mm (default 0.75 of a square)")
     p.add_argument("--dictionary", default="DICT_4X4_50", help="board: ArUco dictionary")
     _plan_args(p)
     p.set_defaults(func=cmd_hardware)

@@ -259,6 +259,12 @@ def cmd_run(args) -> int:
             setup.camera, read_camera_file(args.camera), args.camera))
     calibration, mapping = tracking_calibration(args.out, args.calibration, args.samples,
                                                 method=args.method, n_lights=setup.lights.count)
+    from estimator.lens import check_camera_record  # the calibration's camera file (issue 30)
+
+    warning = check_camera_record(calibration.camera_file, getattr(args, "camera", None),
+                                  args.calibration)
+    if warning:
+        print(f"warning: {warning}", file=sys.stderr)
     tracker = Tracker(setup, calibration, args.method, mapping=mapping)
     fmt = parse_raw_format(args.raw_format)
     w = setup.camera.width_px

@@ -14,7 +14,8 @@ import numpy as np
 
 from .cli_data import add_cluster_arguments, add_dataset_parsers, add_render_parser
 from .cli_progress import StageBars, print_table, progress_bar
-from .cli_camera import add_parsers as add_camera_parsers, camera_arg, with_camera_file
+from .cli_camera import (add_parsers as add_camera_parsers, camera_arg, hold_to_camera_file,
+                         record_camera_file, with_camera_file)
 from .cli_scene import describe_lens, folder_scene
 from .runner import MAX_FRAMES, MAX_SEED, MAX_SPP, finite, integer, run
 
@@ -166,7 +167,9 @@ def cmd_export_mitsuba(args) -> int:
     options = SceneOptions(channels="grey", cornea=args.cornea)
     path = export_mitsuba(setup, args.out, options, yaw_rad=np.radians(args.yaw_deg),
                           pitch_rad=np.radians(args.pitch_deg), spp=args.spp)
-    print(f"Mitsuba scene written to {path} (render it with: mitsuba {path})")
+    print(f"Mitsuba scene written to {path} (render it with: mitsuba {path})"
+          + (f"; it renders the undistorted image, the lens distortion is in "
+             f"{path.parent / 'camera.json'}" if setup.camera.has_distortion else ""))
     return 0
 
 
@@ -178,7 +181,7 @@ def cmd_calibrate(args) -> int:
     setup = with_camera_file(folder_scene(args.dir, args.scene, "scet calibrate"), args.camera)
     cal = calibrate_from_folder(args.dir, setup, cornea_model=args.cornea_model,
                                 light_model=args.light_model)
-    path = save_calibration(cal, args.out)
+    path = save_calibration(record_camera_file(cal, args.camera), args.out)
     q = cal.quality
     conic = f"conic cornea Q = {cal.cornea_asphericity:.4f}, " if cal.conic else ""
     print(f"calibration written to {path}: {conic}r_c = {cal.cornea_radius_m * 1e3:.3f} mm, "
@@ -204,7 +207,7 @@ def cmd_compare(args) -> int:
     from .compare import compare_capture
     from .compare.report import write_report
 
-    setup = folder_scene(args.dir, args.scene, "scet compare")
+    setup = with_camera_file(folder_scene(args.dir, args.scene, "scet compare"), args.camera)
     cal = load_calibration(args.calibration) if args.calibration is not None else None
     bars = StageBars()
     try:
@@ -213,6 +216,10 @@ def cmd_compare(args) -> int:
                                  seed=args.seed, progress=bars.update)
     finally:
         bars.close()
+    if args.camera is not None:
+        result.notes.append(f"camera file {args.camera}: its intrinsics and lens distortion "
+                            "replace the scene's; the capture's detections are undistorted "
+                            "and the render is made through the same lens")
     path = write_report(result, args.report_dir)
     if args.json is not None:
         atomic_write(args.json, json.dumps(result.to_dict(), indent=1, allow_nan=False,
@@ -231,6 +238,7 @@ def cmd_track(args) -> int:
 
     setup = with_camera_file(folder_scene(args.dir, args.scene, "scet track"), args.camera)
     cal = args.calibration  # the path: --out naming it is refused, errors name it
+    hold_to_camera_file(cal, args.camera)
     bar, update = progress_bar(0, "frame", "track")
     try:
         if args.follow:
@@ -431,6 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", type=Path, help="calibration file (default: the scene's "
                                                      "nominal geometry)")
     p.add_argument("--method", choices=("polynomial", "geometric"), default="geometric")
+    camera_arg(p)
     p.add_argument("--report-dir", type=Path, default=Path("reports"),
                    help="where compare.md and its figures (compare/) go (default reports/)")
     p.add_argument("--frames", type=integer(1, 1000), default=8, help="banded frames compared")

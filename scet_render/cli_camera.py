@@ -10,7 +10,8 @@ from pathlib import Path
 
 from .runner import integer
 
-__all__ = ["add_parsers", "cmd_camera", "camera_arg", "with_camera_file"]
+__all__ = ["add_parsers", "cmd_camera", "camera_arg", "with_camera_file", "record_camera_file",
+           "hold_to_camera_file"]
 
 
 def camera_arg(p) -> None:
@@ -31,6 +32,31 @@ def with_camera_file(setup, path):
     from estimator.lens import camera_from_file, read_camera_file
 
     return replace(setup, camera=camera_from_file(setup.camera, read_camera_file(path), path))
+
+
+def record_camera_file(calibration, path):
+    """``scet calibrate --camera``: ``calibration`` with the camera file at ``path`` recorded
+    (:func:`estimator.lens.camera_file_record`; None: unchanged)."""
+    if path is None:
+        return calibration
+    from dataclasses import replace
+
+    from estimator.lens import camera_file_record
+
+    return replace(calibration, camera_file=camera_file_record(path))
+
+
+def hold_to_camera_file(calibration_path, camera_path) -> None:
+    """``scet track``: refuse a camera file other than the calibration's
+    (:func:`estimator.lens.check_camera_record`, an InputError: one line, exit 2); print its
+    warning for a calibration without a record."""
+    from estimator.folders import load_calibration
+    from estimator.lens import check_camera_record
+
+    warning = check_camera_record(load_calibration(calibration_path).camera_file, camera_path,
+                                  calibration_path)
+    if warning:
+        print(f"warning: {warning}", file=sys.stderr)
 
 
 def cmd_camera(args) -> int:
@@ -78,8 +104,9 @@ def add_parsers(sub) -> None:
                                           "and board.json)")
     p.add_argument("--out", type=Path, required=True, help="camera file (camera.json)")
     p.add_argument("--board", type=Path, help="board.json of the printed board (default: DIR's "
-                                              "board.json, else scet hardware board's default, "
-                                              "11x8 of 2.5 mm)")
+                                              "board.json, else 11x8 squares of 2.5 mm; "
+                                              "scet hardware board sizes its board to a "
+                                              "scene's field: give its board.json)")
     p.add_argument("--model", choices=("opencv5", "rational8"), default="opencv5",
                    help="distortion model: k1 k2 p1 p2 k3 (default) or the rational model's 8")
     p.add_argument("--min-views", type=integer(3, 10_000), default=8,

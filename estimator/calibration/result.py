@@ -89,6 +89,11 @@ class Calibration:
         paper's), or the LED's highlights on the turns, which move with the cornea
         (:mod:`estimator.cornea.wire`; the lighting pose then moves the mirror and its LED).
         Written to the file only when ``"wire_mirror"``.
+    camera_file : dict or None
+        The camera file (``scet calibrate --camera``) the glints were undistorted through:
+        ``{"path": str, "sha256": str}`` (:func:`estimator.lens.camera_file_record`); None:
+        the scene's own camera. ``scet track`` refuses another camera file
+        (:func:`estimator.lens.check_camera_record`).
     """
 
     lighting_correction: RigidPose = field(default_factory=RigidPose)
@@ -102,6 +107,7 @@ class Calibration:
     cornea_asphericity: float = 0.0
     glint_flux: GlintFlux | None = None
     light_model: str = "points"
+    camera_file: dict | None = None
 
     def __post_init__(self):
         if self.light_model not in LIGHT_MODELS:
@@ -195,6 +201,7 @@ class Calibration:
             "quality": dict(self.quality),
             **({} if self.glint_flux is None else {"glint_flux": self.glint_flux.to_dict()}),
             **({} if self.light_model == "points" else {"light_model": self.light_model}),
+            **({} if self.camera_file is None else {"camera_file": dict(self.camera_file)}),
         }
 
     @classmethod
@@ -249,8 +256,14 @@ class Calibration:
         flux = doc.obj("glint_flux", required=False)
         flux = GlintFlux.from_dict(flux) if flux is not None else None
         lights = doc.string("light_model", choices=LIGHT_MODELS, required=False, default="points")
+        cam = doc.obj("camera_file", required=False)
+        if cam is not None:
+            digest = cam.string("sha256")
+            if len(digest) != 64 or any(c not in "0123456789abcdef" for c in digest):
+                raise cam.error("sha256", "expected 64 lower-case hex digits (SHA-256)")
+            cam = {"path": cam.string("path"), "sha256": digest}
         return cls(pose, radius, center, r_co, mappings, methods.data if methods else {},
-                   quality.data if quality else {}, model, q, flux, lights)
+                   quality.data if quality else {}, model, q, flux, lights, cam)
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=1)

@@ -9,15 +9,17 @@ Modules: ``board`` (:class:`BoardSpec`, ``board.json``), ``calibrate``
 """
 
 from .board import (BOARD_FORMAT, BOARD_VERSION, DEFAULT_BOARD, DICTIONARIES, BoardError,
-                    BoardSpec, read_board, write_board)
+                    BoardSpec, board_for_setup, read_board, working_distance_m, write_board)
 from .calibrate import CalibrationError, calibrate_from_folder, calibrate_views, detect_board
 from .camera_file import (CAMERA_FORMAT, CAMERA_VERSION, CameraFile, CameraFileError,
-                          camera_from_file, distortion_difference_px, distortion_effect_px,
+                          camera_file_record, camera_from_file,
+                          check_camera_record, distortion_difference_px, distortion_effect_px,
                           ideal_setup, pinhole_of, read_camera_file, write_camera_file)
 
 __all__ = ["BOARD_FORMAT", "BOARD_VERSION", "DEFAULT_BOARD", "DICTIONARIES", "BoardError",
-           "BoardSpec", "read_board", "write_board", "CalibrationError", "calibrate_from_folder",
-           "calibrate_views", "detect_board", "CAMERA_FORMAT", "CAMERA_VERSION", "CameraFile",
-           "CameraFileError", "camera_from_file", "distortion_difference_px",
-           "distortion_effect_px", "ideal_setup", "pinhole_of", "read_camera_file",
-           "write_camera_file"]
+           "BoardSpec", "board_for_setup", "read_board", "working_distance_m", "write_board",
+           "CalibrationError", "calibrate_from_folder", "calibrate_views", "detect_board",
+           "CAMERA_FORMAT", "CAMERA_VERSION", "CameraFile", "CameraFileError",
+           "camera_file_record", "camera_from_file", "check_camera_record",
+           "distortion_difference_px", "distortion_effect_px", "ideal_setup", "pinhole_of",
+           "read_camera_file", "write_camera_file"]

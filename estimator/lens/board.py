@@ -19,6 +19,16 @@ spans 46 px, a marker 33 px, one marker bit 5.5 px: above OpenCV's default minim
 perimeter (3 % of 640 px) and enough pixels a bit to survive a 1-2 px defocus blur. With the
 ~7.3 mm lens (1300 px) a square spans 93 px and a view holds about half the board. The 1.8 mm
 marker is 6 bits of 0.30 mm: 7 dots a bit on a 600 dpi laser printer.
+
+That default is too large for the prototype scene (``scenes/prototype_ov5647.toml``): its camera
+sits 23 mm from the corneal apex, where the 643 px lens sees a field of 22.9 x 17.2 mm, narrower
+than the 27.5 mm board. :func:`board_for_setup` sizes a board to a scene's field instead, by the
+rule the rendered board frames use (``scet render --board``): 11 x 8 squares spanning 60 % of
+the field's width at the working distance (the corneal apex's depth), the side rounded to
+0.1 mm, markers 0.75 of a square (OpenCV's tutorial board's ratio). For the prototype: squares of
+1.3 mm (14.3 x 10.4 mm, 36 px a square, a marker bit of 0.16 mm = 4.5 px; 3.8 dots at 600 dpi,
+so print it at 1200 dpi or on a photo printer and check the 10 mm bar). ``scet hardware board``
+prints that board by default (``--scene``).
 """
 
 from __future__ import annotations
@@ -33,7 +43,8 @@ from ..errors import InputError
 from ..formats import atomic_write, check_format, read_json
 
 __all__ = ["BOARD_FORMAT", "BOARD_VERSION", "BoardError", "BoardSpec", "DEFAULT_BOARD",
-           "read_board", "write_board", "DICTIONARIES"]
+           "read_board", "write_board", "DICTIONARIES", "working_distance_m", "board_for_setup",
+           "FIELD_SHARE"]
 
 BOARD_FORMAT, BOARD_VERSION = "scet-board", 1
 #: The ArUco dictionaries a board may use (OpenCV's predefined 4x4 to 6x6 ones).
@@ -126,6 +137,31 @@ class BoardSpec:
 
 #: The default board (module docstring: why this size).
 DEFAULT_BOARD = BoardSpec(11, 8, 2.5, 1.8, "DICT_4X4_50")
+#: Share of the field's width a board sized by :func:`board_for_setup` spans: room to tilt it
+#: by 30-40 deg or hold it into a corner with most of it in view (module docstring).
+FIELD_SHARE = 0.6
+
+
+def working_distance_m(setup) -> float:
+    """Depth of the corneal apex at primary gaze in ``setup``'s camera frame (m): where the eye
+    is, so where the board is held."""
+    return float(setup.camera.world_to_camera(setup.eye.apex())[2])
+
+
+def board_for_setup(setup, squares=(11, 8), dictionary: str = "DICT_4X4_50") -> BoardSpec:
+    """A board of ``squares`` that spans :data:`FIELD_SHARE` of ``setup``'s field width at its
+    working distance: the side rounded to 0.1 mm (at least 0.1 mm), markers 0.75 of a square.
+
+    Raises
+    ------
+    BoardError
+        When the markers do not fit ``dictionary``.
+    """
+    cam = setup.camera
+    width_m = working_distance_m(setup) * cam.width_px / cam.fx_px
+    tenths_mm = max(1, round(FIELD_SHARE * width_m / squares[0] * 1e4))
+    return BoardSpec(int(squares[0]), int(squares[1]), tenths_mm / 10, 0.75 * tenths_mm / 10,
+                     dictionary)
 
 
 def write_board(spec: BoardSpec, path) -> None:

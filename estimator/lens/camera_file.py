@@ -32,7 +32,7 @@ from .board import BoardSpec, board_from_doc
 __all__ = ["CAMERA_FORMAT", "CAMERA_VERSION", "DISTORTION_LENGTHS", "CameraFileError",
            "CameraFile", "read_camera_file", "write_camera_file", "radial_fold_radius",
            "distortion_effect_px", "distortion_difference_px", "pinhole_of", "ideal_setup",
-           "camera_from_file"]
+           "camera_from_file", "camera_file_record", "check_camera_record"]
 
 CAMERA_FORMAT, CAMERA_VERSION = "scet-camera", 1
 #: Numbers of distortion coefficients OpenCV's model takes.
@@ -286,3 +286,54 @@ def camera_from_file(camera: Camera, camera_file: CameraFile, path=None) -> Came
     d = camera_file.distortion if camera_file.has_distortion else ()
     return replace(camera, fx_px=camera_file.fx_px, fy_px=camera_file.fy_px,
                    cx_px=camera_file.cx_px, cy_px=camera_file.cy_px, distortion=d)
+
+
+def camera_file_record(path) -> dict:
+    """``{"path": ..., "sha256": ...}``: which camera file a calibration was made with (the
+    path as given, resolved, and the SHA-256 of its bytes), for the calibration file's
+    ``camera_file`` key."""
+    import hashlib
+    from pathlib import Path
+
+    p = Path(path)
+    try:
+        digest = hashlib.sha256(p.read_bytes()).hexdigest()
+    except OSError as exc:
+        raise CameraFileError(f"cannot read it: {exc.strerror or exc}", path=path) from None
+    return {"path": str(p.resolve()), "sha256": digest}
+
+
+def check_camera_record(record, camera_path, calibration_path) -> str | None:
+    """Whether a calibration made with the camera file ``record`` (None: made without one)
+    may be used with the camera file at ``camera_path`` (None: the scene's own camera).
+
+    The calibration's lighting correction, corneal radius, eye centre and gaze mappings were
+    fitted to glints undistorted through that camera; through another lens model they are off
+    by as much as the models differ. So a calibration that records a camera file is refused
+    with any other one (or none); files are the same when their contents are (the SHA-256),
+    wherever they lie. A calibration without a record (made without ``--camera``, or before
+    calibrations recorded it) used with a camera file gives a warning, returned.
+
+    Raises
+    ------
+    CameraFileError
+        Naming ``calibration_path`` and the key ``camera_file``.
+    """
+    if record is None:
+        if camera_path is None:
+            return None
+        return (f"{calibration_path} records no camera file (calibrated through the scene's "
+                f"own camera, or before calibrations recorded it); tracking through "
+                f"{camera_path} instead")
+    if camera_path is None:
+        raise CameraFileError(f"the calibration was made with the camera file "
+                              f"{record['path']} (sha256 {record['sha256'][:12]}); give it "
+                              "with --camera", path=calibration_path, key="camera_file")
+    given = camera_file_record(camera_path)
+    if given["sha256"] != record["sha256"]:
+        raise CameraFileError(f"the calibration was made with the camera file "
+                              f"{record['path']} (sha256 {record['sha256'][:12]}), not with "
+                              f"{camera_path} (sha256 {given['sha256'][:12]}): calibrate again "
+                              "with this camera file", path=calibration_path,
+                              key="camera_file.sha256")
+    return None

@@ -260,7 +260,7 @@ def compare_capture(capture_dir, setup: Setup, *, calibration=None, method: str 
                                                   gr, cm, rm_b, gaze, cap_samples,
                                                   ren_samples)[0],
         msetup, cm, rm, lambda imgs: _track(msetup, calibration, method, imgs, starts),
-        radiance, renders, est, seed, black_c)
+        radiance, renders, est, seed, black_c, setup)
     return CompareResult(capture_dir, setup, msetup, timing, sorted(images), images, renders, cm,
                          rm, cap_samples, ren_samples, sensor, geometry, gaze, rows, findings,
                          notes)

@@ -36,6 +36,8 @@ from estimator.formats import atomic_file, atomic_write
 from estimator.geometry import Camera, rotation_matrix
 from estimator.setup import Setup
 
+from estimator.lens.board import board_for_setup, working_distance_m
+
 from .lens import LensRays
 
 log = logging.getLogger(__name__)
@@ -88,18 +90,13 @@ class CharucoSpec:
 
 
 def spec_for(setup: Setup) -> CharucoSpec:
-    """A board that fills about 60 % of the field's width at the working distance: 11 x 8
-    squares (many corners near each view's edge), the side rounded to 0.1 mm, markers 0.75 of
-    a square (OpenCV's tutorial board's ratio)."""
-    cam = setup.camera
-    width_m = working_distance_m(setup) * cam.width_px / cam.fx_px
-    tenths_mm = max(1, round(0.6 * width_m / 11 * 1e4))
-    return CharucoSpec((11, 8), tenths_mm / 1e4, 0.75 * tenths_mm / 1e4)
-
-
-def working_distance_m(setup: Setup) -> float:
-    """Depth of the corneal apex at primary gaze in the camera frame (m): where the eye is."""
-    return float(setup.camera.world_to_camera(setup.eye.apex())[2])
+    """The board ``scet hardware board --scene`` prints for ``setup``
+    (:func:`estimator.lens.board_for_setup`: 11 x 8 squares, many corners near each view's
+    edge, spanning 60 % of the field's width at the working distance)."""
+    b = board_for_setup(setup)
+    tenths_mm = round(b.square_mm * 10)  # metres exactly as the tenths give them
+    return CharucoSpec((b.squares_x, b.squares_y), tenths_mm / 1e4, 0.75 * tenths_mm / 1e4,
+                       b.dictionary)
 
 
 #: Where the board's centre goes, in units of the half image (x, y): the four corners first

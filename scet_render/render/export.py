@@ -4,6 +4,24 @@ meshes and textures, renderable unchanged by ``mitsuba scene.xml``.
 Mitsuba's ``mitsuba`` command cannot load Python plugins, so the renderer's cornea BSDF
 (:mod:`~scet_render.render.cornea_bsdf`) is written as Mitsuba's own ``dielectric``: the same
 interface and the same image in the limit of many samples, its glints noisier at low spp.
+
+The lens (:mod:`~scet_render.render.lens`): SCET renders it with its own rays, which a plain
+``scene.xml`` cannot carry. What Mitsuba's own sensors can express is written:
+
+* the thin lens (defocus): Mitsuba's ``thinlens`` sensor, with the same entrance pupil
+  (``aperture_radius`` = f / (2 N)) and the same focus plane z = d_f in the camera frame
+  (``focus_distance``), when the principal point is the film's centre (``thinlens`` has no
+  principal point offset); otherwise the ``perspective`` pinhole, and the XML says the defocus
+  is missing;
+* the distortion: no Mitsuba 3 sensor has one, so the exported scene renders the *undistorted*
+  (pinhole-projection) image. The lens is written beside it as ``camera.json``
+  (``scet-camera``, docs/formats/camera.md: K, the OpenCV coefficients, the image size), and
+  the XML names it: a distorted frame is the render resampled at the ideal pixel of each
+  distorted pixel, ``cv2.remap(render, *map)`` with ``map`` from ``cv2.undistortPoints(pixels,
+  K, distortion, P=K)`` (read as an array, the render's pixel [v, u] is OpenCV's pixel (u, v),
+  DESIGN.md's convention). The remap
+  interpolates the rendered image, which the renderer's own lens rays do not: it is not
+  byte-identical to ``scet render``'s frames, and a glint narrower than a pixel is smoothed.
 """
 
 from __future__ import annotations
@@ -18,7 +36,7 @@ from estimator.formats import atomic_write
 from estimator.setup import Setup
 
 from .cornea_bsdf import CORNEA_BSDF_TYPE
-from .layout import SceneOptions
+from .layout import SCENE_UNITS_PER_M, SceneOptions
 from .scene import describe_scene
 
 log = logging.getLogger(__name__)
@@ -26,7 +44,8 @@ log = logging.getLogger(__name__)
 # --------------------------------------------------------------------------- export
 
 _TAGS = {"scene": "scene", "path": "integrator", "perspective": "sensor", "independent": "sampler",
-         "hdrfilm": "film", "box": "rfilter", "disk": "shape", "sphere": "shape", "ply": "shape",
+         "thinlens": "sensor", "hdrfilm": "film", "box": "rfilter", "disk": "shape",
+         "sphere": "shape", "ply": "shape",
          "diffuse": "bsdf", "twosided": "bsdf", "dielectric": "bsdf", "conductor": "bsdf",
          "mask": "bsdf", "bitmap": "texture", "area": "emitter", "constant": "emitter",
          "shapegroup": "shape", "instance": "shape"}
@@ -81,6 +100,46 @@ def _without_plugin(value, found: list):
     return {k: _without_plugin(v, found) for k, v in value.items()}
 
 
+def _write_lens(setup: Setup, objects: dict, out: Path) -> list[str]:
+    """Put the camera's thin lens into ``objects["camera"]`` where Mitsuba's ``thinlens`` can
+    carry it, write ``camera.json`` for a distortion; the XML comments saying what is missing
+    (module docstring)."""
+    cam = setup.camera
+    notes = []
+    if cam.is_thin_lens:
+        sensor = objects["camera"]
+        centred = (abs(sensor["principal_point_offset_x"]) < 1e-12
+                   and abs(sensor["principal_point_offset_y"]) < 1e-12)
+        if centred:
+            sensor = {k: v for k, v in sensor.items() if not k.startswith("principal_point")}
+            sensor["type"] = "thinlens"
+            sensor["aperture_radius"] = cam.aperture_radius_m * SCENE_UNITS_PER_M
+            sensor["focus_distance"] = cam.focus_distance_m * SCENE_UNITS_PER_M
+            objects["camera"] = sensor
+            notes.append(f"camera: thin lens f/{cam.f_number:g} focused at "
+                         f"{cam.focus_distance_m * 1e3:g} mm (Mitsuba's thinlens: "
+                         f"aperture_radius {cam.aperture_radius_m * 1e3:.6g} mm)")
+        else:
+            notes.append("camera: the thin lens (defocus) is NOT written: Mitsuba's thinlens "
+                         "has no principal point offset, and this camera's principal point is "
+                         "off the film's centre; the sensor is the perspective pinhole")
+    if cam.has_distortion:
+        from estimator.lens import CameraFile, write_camera_file
+
+        write_camera_file(CameraFile(cam.K, cam.distortion, cam.width_px, cam.height_px,
+                                     model="given"), out / "camera.json")
+        notes.append("camera: the lens distortion (OpenCV "
+                     f"[{', '.join(f'{d:.6g}' for d in cam.distortion)}]) is NOT rendered: no "
+                     "Mitsuba sensor has one, so this scene renders the undistorted image. The "
+                     "lens is in camera.json beside this file: resample the render with "
+                     "cv2.remap at cv2.undistortPoints(pixels, K, distortion, P=K) for the "
+                     "distorted frame (scet_render/render/export.py)")
+    for n in notes:
+        if "NOT" in n:
+            log.warning("export-mitsuba: %s: %s", setup.name, n)
+    return notes
+
+
 def export_mitsuba(setup: Setup, out_dir: str | Path, options: SceneOptions | None = None, *,
                    yaw_rad: float = 0.0, pitch_rad: float = 0.0, spp: int = 64) -> Path:
     """Write ``scene.xml``, ``meshes/*.ply`` and ``textures/*.png`` that ``mitsuba scene.xml``
@@ -104,14 +163,12 @@ def export_mitsuba(setup: Setup, out_dir: str | Path, options: SceneOptions | No
         The XML file.
     """
     options = SceneOptions(channels="grey") if options is None else options
-    if setup.camera.has_distortion or setup.camera.is_thin_lens:
-        log.warning("export-mitsuba: %s's lens (distortion, thin lens) is not written: Mitsuba's "
-                    "perspective sensor is a pinhole (SCET renders the lens with its own rays)",
-                    setup.name)
     desc = describe_scene(setup, options, spp=spp, yaw_rad=yaw_rad, pitch_rad=pitch_rad)
     import cv2
 
     out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    lens_notes = _write_lens(setup, desc.objects, out)
     (out / "meshes").mkdir(parents=True, exist_ok=True)
     (out / "textures").mkdir(parents=True, exist_ok=True)
     for name, mesh in desc.meshes.items():
@@ -123,6 +180,8 @@ def export_mitsuba(setup: Setup, out_dir: str | Path, options: SceneOptions | No
                            np.round(np.clip(data, 0, 1) * 65535).astype(np.uint16)):
             raise OSError(f"cannot write {out / 'textures' / f'{name}.png'}")
     root = ET.Element("scene", version="3.0.0")
+    for note in lens_notes:
+        root.append(ET.Comment(f" {note} "))
     for key, value in desc.objects.items():
         if key != "type":
             found = []

@@ -85,7 +85,8 @@ def test_a_board_larger_than_a4_gets_its_own_page(tmp_path):
 
 
 def test_cli_writes_the_board_and_refuses_bad_values(tmp_path, capsys):
-    assert main(["hardware", "board", "--out", str(tmp_path / "b")]) == 0
+    assert main(["hardware", "board", "--out", str(tmp_path / "b"), "--square-mm", "2.5",
+                 "--marker-mm", "1.8"]) == 0
     assert "11x8 squares of 2.5 mm" in capsys.readouterr().out
     assert read_board(tmp_path / "b" / "board.json") == DEFAULT_BOARD
     for flags, text in ((["--marker-mm", "3"], "marker_mm"), (["--squares", "12x10"], "60 markers"),
@@ -93,3 +94,26 @@ def test_cli_writes_the_board_and_refuses_bad_values(tmp_path, capsys):
         assert main(["hardware", "board", "--out", str(tmp_path / "c"), *flags]) == 2
         err = capsys.readouterr().err
         assert text in err and len(err.strip().splitlines()) == 1
+
+
+def test_the_default_board_fits_the_prototypes_field(tmp_path, capsys):
+    # Issue 30: the 27.5 mm default board is wider than the prototype's 22.9 mm field at its
+    # 23 mm working distance. The printed default spans 60 % of that field (1.3 mm squares),
+    # so it can be tilted or held into a corner and stay mostly in view; another scene gets
+    # its own size.
+    from estimator.lens import working_distance_m
+    from estimator.scene import load_scene
+
+    assert main(["hardware", "board", "--out", str(tmp_path / "p")]) == 0
+    assert "sized to prototype_ov5647's field" in capsys.readouterr().out
+    spec = read_board(tmp_path / "p" / "board.json")
+    assert (spec.square_mm, spec.marker_mm) == (1.3, 0.975)
+    setup = load_scene("prototype_ov5647")
+    field_mm = 1e3 * working_distance_m(setup) * setup.camera.width_px / setup.camera.fx_px
+    assert DEFAULT_BOARD.size_mm[0] > field_mm  # the issue: the old default did not fit
+    assert spec.size_mm[0] == pytest.approx(0.6 * field_mm, abs=11 * 0.05)
+    assert main(["hardware", "board", "--out", str(tmp_path / "q"), "--scene", "paper_sim"]) == 0
+    assert read_board(tmp_path / "q" / "board.json").square_mm == 0.6  # 1300 px: half the field
+    capsys.readouterr()
+    assert main(["hardware", "board", "--out", str(tmp_path / "r"), "--scene", "nowhere"]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1

@@ -88,3 +88,24 @@ def foreign_capture(folder, scene_path, kind: str, *, frames=FRAMES, seed=3, spp
                    seed=seed, sensor=sensor, scene_text=text)
     return replay_dataset(folder / f"{kind}-dataset", folder / f"{kind}-capture",
                           scene=scene_path)
+
+
+def blurred_capture(folder, scene_path, sigma_px: float, *, frames=FRAMES, seed=3) -> Path:
+    """The unperturbed capture with every frame blurred by a ``sigma_px`` Gaussian after the
+    sensor (a slightly defocused lens, as issue 30 measured it): the nominal render (reused
+    when ``folder`` has it), its PNGs blurred and rounded, replayed as a capture."""
+    import shutil
+
+    import cv2
+
+    folder = Path(folder)
+    nominal = folder / "nominal-dataset"
+    if not (nominal / "manifest.json").is_file():
+        foreign_capture(folder, scene_path, "nominal", frames=frames, seed=seed)
+    out = folder / f"blurred-{sigma_px:g}-dataset"
+    shutil.copytree(nominal, out)
+    for p in sorted((out / "frames").glob("*.png")):
+        a = cv2.imread(str(p), cv2.IMREAD_UNCHANGED).astype(np.float64)
+        b = cv2.GaussianBlur(a, (0, 0), sigma_px)
+        cv2.imwrite(str(p), np.clip(np.rint(b), 0, 1023).astype(np.uint16))
+    return replay_dataset(out, folder / f"blurred-{sigma_px:g}-capture", scene=scene_path)

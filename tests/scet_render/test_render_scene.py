@@ -258,6 +258,42 @@ def test_export_renders_with_mitsubas_own_loader(mi, setup, tmp_path):
     assert math.isclose(exported.mean(), direct.mean(), rel_tol=0.02)
 
 
+def test_export_writes_the_lens_mitsuba_can_carry(mi, tmp_path):
+    # The prototype's lens (issue 30): its thin lens as Mitsuba's thinlens sensor (the same
+    # pupil and focus plane: every ray through a pixel meets the focus plane where the pinhole
+    # ray does), its distortion in camera.json beside the XML (no Mitsuba sensor has one).
+    from estimator.lens import read_camera_file
+
+    proto = load_scene("prototype_ov5647")
+    cam = proto.camera
+    path = export_mitsuba(proto, tmp_path / "scene", spp=1)
+    text = path.read_text()
+    assert 'type="thinlens"' in text and "distortion" in text and "camera.json" in text
+    lens = read_camera_file(path.parent / "camera.json")
+    assert lens.K.tolist() == cam.K.tolist() and lens.distortion.tolist() == [-0.05, 0, 0, 0, 0]
+    sensor = mi.load_file(str(path)).sensors()[0]
+    pinhole = dataclasses.replace(cam, distortion=(), f_number=None, focus_distance_m=None)
+    d_f = cam.focus_distance_m
+    for u, v in ((100.0, 50.0), (319.5, 239.5), (600.0, 400.0)):
+        film = mi.Point2f(float((u + 0.5) / cam.width_px), float((v + 0.5) / cam.height_px))
+        hits, origins = [], []
+        for a in ((0.1, 0.2), (0.9, 0.5), (0.5, 0.95)):
+            ray, _ = sensor.sample_ray(0.0, 0.5, film, mi.Point2f(*a))
+            o = np.array(ray.o, dtype=np.float64).ravel() / SCENE_UNITS_PER_M
+            dv = np.array(ray.d, dtype=np.float64).ravel()
+            oc, dc = cam.world_to_camera(o), dv @ cam.rotation.T
+            origins.append(oc)
+            hits.append(oc + (d_f - oc[2]) / dc[2] * dc)  # camera frame, on the focus plane
+        hits, origins = np.array(hits), np.array(origins)
+        # the rays leave points of the pupil of radius f / (2 N), far apart ...
+        r = np.hypot(origins[:, 0], origins[:, 1])
+        assert 0.3 * cam.aperture_radius_m < r.max() <= cam.aperture_radius_m * (1 + 1e-5)
+        # ... and meet on the focus plane (float32 rays: 1e-7 of 27 mm)
+        assert np.linalg.norm(np.diff(hits, axis=0), axis=1).max() < 1e-8
+        px = pinhole.project(hits[0] @ cam.rotation + cam.position_m)[0]
+        assert np.abs(px - [u, v]).max() < 10 * TOL.pixel_px
+
+
 @pytest.mark.slow
 def test_export_renders_with_the_mitsuba_command(setup, tmp_path):
     exe = shutil.which("mitsuba") or shutil.which("mitsuba", path=str(Path(sys.executable).parent))
