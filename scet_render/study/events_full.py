@@ -31,7 +31,8 @@ from estimator.events.detect import FIRST_ROUND
 from estimator.scene import load_scene
 
 from .events_score import match_events, pool, summarise, truth_events
-from .events_sim import StreamSetting, band_setting, simulate_stream, study_trajectory
+from .events_sim import (StreamSetting, band_setting, on_screen_mask, simulate_stream,
+                         study_trajectory)
 
 N_SACCADES, N_MICRO = 200, 100
 PULSES = (4, 8, 16)
@@ -62,6 +63,10 @@ CHANGES = (
 #: on them, edge-fit powers 2, 3 or 2-3 alone and a 0.7 speed fraction, did no better and
 #: were not adopted).
 HELD_OUT_SEEDS = (1, 2, 3, 4)
+#: Trajectories first simulated in issue 34's third round, after the simulator's trajectories
+#: were kept on the screen (:func:`study_trajectory`): today's detector, unchanged in that
+#: round, on trajectories nothing was ever tried on.
+FRESH_SEEDS = (5, 6, 7, 8)
 
 
 def noise_sd_deg(scene_name: str, pulses: int) -> float:
@@ -99,15 +104,20 @@ def score(setting, traj, t, pos, detector, params: EventParams = EventParams()):
 
 
 def detector_changes(setup, goal, traj, t, pos, seed: int, n_saccades: int, n_micro: int,
-                     held_out=HELD_OUT_SEEDS) -> list:
+                     held_out=HELD_OUT_SEEDS, fresh=FRESH_SEEDS) -> tuple:
     """Each of :data:`CHANGES` on the goal setting's samples (``t``, ``pos`` of ``traj``) and
     on the pooled streams of the :data:`HELD_OUT_SEEDS` trajectories: dicts of the change's
-    name and the two summaries (:func:`summarise`), with the held-out saccade counts."""
-    streams = [(traj, t, pos)]
-    for s in held_out:
-        tr = study_trajectory(setup, n_saccades, n_micro, seed + s)
+    name and the two summaries (:func:`summarise`), with the held-out saccade counts; then
+    :func:`bracketed_onsets` of today's detector over the study's, the held-out and the
+    :data:`FRESH_SEEDS` trajectories, with the pooled summaries of the held-out and fresh
+    ones and of the held-out seeds' trajectories by the earlier rule that let them leave the
+    screen (``keep_on_screen`` False); and :func:`nan_band_onsets`."""
+    def stream(s, on_screen=True):
+        tr = study_trajectory(setup, n_saccades, n_micro, seed + s, keep_on_screen=on_screen)
         ts, ps = simulate_stream(goal, tr, tr.duration_s, seed + s)
-        streams.append((tr, ts, ps))
+        return tr, ts, ps
+
+    streams = [(traj, t, pos)] + [stream(s) for s in held_out]
     out = []
     for name, params in CHANGES:
         ms = [score(goal, tr, ts, ps, "scet", params)[0] for tr, ts, ps in streams]
@@ -115,7 +125,18 @@ def detector_changes(setup, goal, traj, t, pos, seed: int, n_saccades: int, n_mi
         out.append({"name": name, "study": summarise(ms[0]),
                     "held_out": None if held is None else summarise(held),
                     "n_held_out": 0 if held is None else int((held.truth.amplitude_deg >= 1).sum())})
-    bracketed = {**bracketed_onsets(streams), "held_out_seeds": tuple(seed + k for k in held_out)}
+    new = [stream(s) for s in fresh]
+    earlier = [stream(s, on_screen=False) for s in held_out]
+    pooled = {}
+    for key, group in (("held out", streams[1:]), ("fresh", new), ("earlier", earlier)):
+        if group:
+            m = pool([score(goal, tr, ts, ps, "scet")[0] for tr, ts, ps in group])
+            pooled[key] = (summarise(m), int((m.truth.amplitude_deg >= 1).sum()))
+    bracketed = {**bracketed_onsets(streams + new, setup),
+                 "seeds": (seed,) + tuple(seed + k for k in (*held_out, *fresh)),
+                 "held_out_seeds": tuple(seed + k for k in held_out),
+                 "fresh_seeds": tuple(seed + k for k in fresh), "pooled": pooled,
+                 "earlier": bracketed_onsets(earlier, setup)["per_stream"]}
     return out, bracketed, nan_band_onsets(goal, traj, t, pos, seed)
 
 
@@ -163,11 +184,14 @@ def nan_band_onsets(goal, traj, t, pos, seed: int) -> dict:
 BRACKETED_S = 0.6e-3
 
 
-def bracketed_onsets(streams) -> dict:
+def bracketed_onsets(streams, setup=None) -> dict:
     """Today's detector over the streams [(trajectory, t, pos)]: the onset mean abs error
     (ms, with its interval) of the matched saccades >= 1 deg whose onset is bracketed
     (:data:`BRACKETED_S`) and of the rest (NaN bands or the blanking beside it), and how many
-    of each."""
+    of each; per stream the valid share, with ``setup`` the share of bands whose gaze meets
+    the screen and the valid share on and off it, the saccades >= 1 deg, those missed, missed
+    in the dark (fewer than 20 % of the bands within 10 ms of it valid) and missed off the
+    screen (a band within 10 ms of it off the screen)."""
     from .events_score import mean_ci
 
     err, unc, per = [], [], []
@@ -182,10 +206,16 @@ def bracketed_onsets(streams) -> dict:
         unc.append(ev.onset_uncertainty_s[m.match[hit]])
         ok = np.isfinite(pos).all(axis=1)
         missed = np.flatnonzero(big & (m.match < 0))
-        dark = sum(ok[(t >= truth.onset_s[i] - 0.01) & (t <= truth.offset_s[i] + 0.01)].mean() < 0.2
-                   for i in missed)
-        per.append({"valid": float(ok.mean()), "n": int(big.sum()), "missed": int(missed.size),
-                    "missed_dark": int(dark), "onset_mae_ms": float(err[-1].mean())})
+        near = [(t >= truth.onset_s[i] - 0.01) & (t <= truth.offset_s[i] + 0.01) for i in missed]
+        row = {"valid": float(ok.mean()), "n": int(big.sum()), "missed": int(missed.size),
+               "missed_dark": int(sum(ok[w].mean() < 0.2 for w in near)),
+               "onset_mae_ms": float(err[-1].mean()) if err[-1].size else math.nan}
+        if setup is not None:
+            on = on_screen_mask(setup, tr, t)
+            row.update(on_screen=float(on.mean()), valid_on=float(ok[on].mean()) if on.any() else math.nan,
+                       valid_off=float(ok[~on].mean()) if (~on).any() else math.nan,
+                       missed_off=int(sum(not on[w].all() for w in near)))
+        per.append(row)
     err, unc = np.concatenate(err), np.concatenate(unc)
     inside = unc <= BRACKETED_S
     return {"streams": len(streams), "per_stream": per,

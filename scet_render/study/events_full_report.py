@@ -367,8 +367,8 @@ with 50 ms of samples on each side.
 {goal_table(rows)}
 Goal met: "yes" when the value and its whole interval meet the goal; "yes, interval reaches
 past it" when the value meets it but the interval does not rule out missing it. These are one
-trajectory per lighting; the next section measures the goal setting on four more, where the
-designed lighting's dark regions (no band identified) cost detections and timing.
+trajectory per lighting; the next two sections measure the goal setting on eight more
+(four held out from the second round, four fresh).
 
 {changes_section(changes)}
 ## Where the error comes from (designed lighting, 16 pulses, S = 524)
