@@ -224,28 +224,29 @@ def bracketed_onsets(streams, setup=None) -> dict:
             "gap_share_of_error": float(err[~inside].sum() / err.sum()) if err.sum() > 0 else math.nan}
 
 
-def stream_latency(t, pos, traj, frame_s: float) -> dict:
+def stream_latency(t, pos, traj, frame_s: float, early: bool = False) -> dict:
     """Latency of :class:`EventStream` (reported minus true onset, ms) over the matched
-    saccades >= 1 deg, samples pushed a frame at a time."""
-    stream = EventStream()
-    on, off, rep = [], [], []
+    saccades >= 1 deg, samples pushed a frame at a time (``early``: the stream's early
+    reports), with the summary (:func:`summarise`) of the streamed events."""
+    stream = EventStream(early=early)
+    got = []
     edges = np.arange(t[0], t[-1] + frame_s, frame_s)
     idx = np.searchsorted(t, edges)
     for a, b in zip(idx[:-1], idx[1:]):
         if b > a:
             ev = stream.push(t[a:b], pos[a:b])
-            on.extend(ev.onset_s)
-            off.extend(ev.offset_s)
+            got.append((ev.onset_s, ev.offset_s, ev.amplitude_deg, ev.peak_velocity_deg_s))
+    on, off, amp, peak = (np.concatenate([g[k] for g in got]) for k in range(4))
     rep = np.array(stream.reported_at_s)
     truth = truth_events(traj, float(t[0]), float(t[-1]))
-    m = match_events(np.array(on), np.array(off), np.zeros(len(on)), np.zeros(len(on)), truth,
-                     0.5e-3, float(t[0]), float(t[-1]))
+    m = match_events(on, off, amp, peak, truth, 0.5 * float(np.median(np.diff(t))),
+                     float(t[0]), float(t[-1]))
     hit = (m.match >= 0) & (truth.amplitude_deg >= 1.0)
     lat = 1e3 * (rep[m.match[hit]] - truth.onset_s[hit])
     after_off = 1e3 * (rep[m.match[hit]] - truth.offset_s[hit])
     return {"n": int(hit.sum()), "median_ms": float(np.median(lat)),
             "p95_ms": float(np.percentile(lat, 95)), "after_offset_median_ms": float(np.median(after_off)),
-            "settle_ms": 1e3 * EventParams().settle_s}
+            "settle_ms": 1e3 * stream.wait_s, "summary": summarise(m), "early": early}
 
 
 def run_full_event_study(lightings: dict, *, out_dir, report_dir, seed: int = 0, progress=None,
@@ -305,7 +306,8 @@ def run_full_event_study(lightings: dict, *, out_dir, report_dir, seed: int = 0,
                              "summary": summ, "matched": m})
             if lab == GOAL[0] and name == "16 pulses, S = 524":
                 t0 = time.perf_counter()
-                latency = stream_latency(t, pos, traj, setup.sensor.frame_period_s)
+                latency = [stream_latency(t, pos, traj, setup.sensor.frame_period_s, early)
+                           for early in (False, True)]
                 timings["stream"] += time.perf_counter() - t0
                 traces["goal"] = (t, pos, traj)
                 t0 = time.perf_counter()
