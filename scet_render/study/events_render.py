@@ -110,9 +110,9 @@ def rendered_samples(scene, out_dir, *, seed: int = 0, render: bool = True):
         atomic_write(folder / TIMING_NAME, timing_document({f: f * dt for f in range(n)},
                                                            exposure_s=setup.sensor.exposure_s,
                                                            strobe=setup.strobe))
-    calibration = calibrate_from_folder(out / "calibration", load_scene(scene))
     csv = out / f"samples_{n}.csv"
-    if not csv.is_file():
+    if not csv.is_file():  # tracked once per frame count
+        calibration = calibrate_from_folder(out / "calibration", load_scene(scene))
         track_folder(folder, setup, calibration, csv, method="geometric")
     t, pos = gaze_from_samples_csv(csv, setup)
     traj = dataset_trajectory(setup, "saccades", RENDER_FRAMES, seed)
