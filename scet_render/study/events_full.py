@@ -368,6 +368,17 @@ def cli_conditions(rows) -> list:
     return out
 
 
+def invalid_reasons(folder: Path, frames: int) -> list:
+    """(reason, count) of the tracked rendered samples that are not ``ok``, most first (the
+    ``reason`` column of the samples CSV)."""
+    import csv
+    from collections import Counter
+
+    with open(Path(folder) / f"samples_{frames}.csv", newline="") as f:
+        rows = csv.DictReader(line for line in f if not line.startswith("#"))
+        return Counter(r["reason"] for r in rows if r["reason"] != "ok").most_common()
+
+
 #: A rendered sample further than this many noise SDs from the truth is an outlier (a
 #: misidentified band): counted in the report, left in the samples the detectors see.
 OUTLIER_SDS = 5.0
@@ -402,6 +413,7 @@ def rendered_comparison(scene, out_dir: Path, seed: int, *, render: bool):
     pm = truth_pos + rng.normal(0.0, sd_rendered, truth_pos.shape)
     pm[~ok] = np.nan
     out = {"frames": frames, "planned": planned, "noise_sd_deg": sd_rendered, "rms_deg": rms,
+           "reasons": invalid_reasons(out_dir / "designed", frames),
            "outliers": outliers,
            "valid_rendered": float(ok.mean()), "valid_simulated": float(np.isfinite(ps).all(axis=1).mean())}
     for det in DETECTORS:
