@@ -168,6 +168,17 @@ class EventParams:
         # an event starting within min_interval_s of the offset would be merged into it
         return max(windows + self.amplitude_window_s, self.min_interval_s + self.timing_window_s)
 
+    @property
+    def early_settle_s(self) -> float:
+        """Time after an offset before the event's own values are final, without waiting out
+        the minimum intersaccadic interval (s): the offset is a crossing at a sample whose
+        fit reaches ``timing_window_s`` (``small_window_s`` for a microsaccade) beyond it,
+        and the edge fit and the amplitude take ``edge_before_s`` and
+        ``amplitude_window_s`` of samples after it; 10 ms with the defaults. What the
+        streaming form waits with ``early`` (:class:`estimator.events.EventStream`)."""
+        after = max(self.small_window_s, self.amplitude_window_s, self.edge_before_s)
+        return after + self.timing_window_s
+
 
 #: The detector of the first full-size study (reports/events.md before issue 34's second
 #: round): one noise SD per scale, crossings at the samples' own instants, no merging. Kept

@@ -37,12 +37,18 @@ class EventStream:
     params : EventParams
     history_s : float
         Samples kept for the noise estimate (s).
+    early : bool
+        Report each event :attr:`EventParams.early_settle_s` after its offset rather than
+        :attr:`EventParams.settle_s` (module docstring).
     """
 
-    def __init__(self, params: EventParams = EventParams(), history_s: float = HISTORY_S):
+    def __init__(self, params: EventParams = EventParams(), history_s: float = HISTORY_S, *,
+                 early: bool = False):
         if not history_s > MAX_EVENT_S + 2 * params.settle_s:
             raise ValueError(f"history_s must exceed {MAX_EVENT_S + 2 * params.settle_s} s")
         self.params = params
+        self.early = bool(early)
+        self.wait_s = params.early_settle_s if self.early else params.settle_s
         self.history_s = float(history_s)
         self._t = np.zeros(0)
         self._x = np.zeros((0, 2))
@@ -74,8 +80,14 @@ class EventStream:
         recent = self._t >= start
         found = detect_events(self._t[recent], self._x[recent], p, noise_sd_deg_s=self._sd)
         first = float(self._t[recent][0])
-        done = ((found.offset_s + p.settle_s <= now) & (found.onset_s > self._last_offset)
+        done = ((found.offset_s + self.wait_s <= now) & (found.onset_s > self._last_offset)
                 & (found.onset_s >= first + p.settle_s))
+        # an event starting within the minimum interval after the last reported one continues
+        # it (detect_events merges no event still under way: the data end inside it)
+        cont = done & (found.onset_s - self._last_offset < p.min_interval_s)
+        if cont.any():
+            self._last_offset = max(self._last_offset, float(found.offset_s[cont].max()))
+        done &= ~cont
         out = found.select(done)
         if out.count:
             self._last_offset = float(out.offset_s.max())

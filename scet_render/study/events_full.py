@@ -31,7 +31,8 @@ from estimator.events.detect import FIRST_ROUND
 from estimator.scene import load_scene
 
 from .events_score import match_events, pool, summarise, truth_events
-from .events_sim import StreamSetting, band_setting, simulate_stream, study_trajectory
+from .events_sim import (StreamSetting, band_setting, on_screen_mask, simulate_stream,
+                         study_trajectory)
 
 N_SACCADES, N_MICRO = 200, 100
 PULSES = (4, 8, 16)
@@ -62,6 +63,10 @@ CHANGES = (
 #: on them, edge-fit powers 2, 3 or 2-3 alone and a 0.7 speed fraction, did no better and
 #: were not adopted).
 HELD_OUT_SEEDS = (1, 2, 3, 4)
+#: Trajectories first simulated in issue 34's third round, after the simulator's trajectories
+#: were kept on the screen (:func:`study_trajectory`): today's detector, unchanged in that
+#: round, on trajectories nothing was ever tried on.
+FRESH_SEEDS = (5, 6, 7, 8)
 
 
 def noise_sd_deg(scene_name: str, pulses: int) -> float:
@@ -99,15 +104,20 @@ def score(setting, traj, t, pos, detector, params: EventParams = EventParams()):
 
 
 def detector_changes(setup, goal, traj, t, pos, seed: int, n_saccades: int, n_micro: int,
-                     held_out=HELD_OUT_SEEDS) -> list:
+                     held_out=HELD_OUT_SEEDS, fresh=FRESH_SEEDS) -> tuple:
     """Each of :data:`CHANGES` on the goal setting's samples (``t``, ``pos`` of ``traj``) and
     on the pooled streams of the :data:`HELD_OUT_SEEDS` trajectories: dicts of the change's
-    name and the two summaries (:func:`summarise`), with the held-out saccade counts."""
-    streams = [(traj, t, pos)]
-    for s in held_out:
-        tr = study_trajectory(setup, n_saccades, n_micro, seed + s)
+    name and the two summaries (:func:`summarise`), with the held-out saccade counts; then
+    :func:`bracketed_onsets` of today's detector over the study's, the held-out and the
+    :data:`FRESH_SEEDS` trajectories, with the pooled summaries of the held-out and fresh
+    ones and of the held-out seeds' trajectories by the earlier rule that let them leave the
+    screen (``keep_on_screen`` False); and :func:`nan_band_onsets`."""
+    def stream(s, on_screen=True):
+        tr = study_trajectory(setup, n_saccades, n_micro, seed + s, keep_on_screen=on_screen)
         ts, ps = simulate_stream(goal, tr, tr.duration_s, seed + s)
-        streams.append((tr, ts, ps))
+        return tr, ts, ps
+
+    streams = [(traj, t, pos)] + [stream(s) for s in held_out]
     out = []
     for name, params in CHANGES:
         ms = [score(goal, tr, ts, ps, "scet", params)[0] for tr, ts, ps in streams]
@@ -115,7 +125,18 @@ def detector_changes(setup, goal, traj, t, pos, seed: int, n_saccades: int, n_mi
         out.append({"name": name, "study": summarise(ms[0]),
                     "held_out": None if held is None else summarise(held),
                     "n_held_out": 0 if held is None else int((held.truth.amplitude_deg >= 1).sum())})
-    bracketed = {**bracketed_onsets(streams), "held_out_seeds": tuple(seed + k for k in held_out)}
+    new = [stream(s) for s in fresh]
+    earlier = [stream(s, on_screen=False) for s in held_out]
+    pooled = {}
+    for key, group in (("held out", streams[1:]), ("fresh", new), ("earlier", earlier)):
+        if group:
+            m = pool([score(goal, tr, ts, ps, "scet")[0] for tr, ts, ps in group])
+            pooled[key] = (summarise(m), int((m.truth.amplitude_deg >= 1).sum()))
+    bracketed = {**bracketed_onsets(streams + new, setup),
+                 "seeds": (seed,) + tuple(seed + k for k in (*held_out, *fresh)),
+                 "held_out_seeds": tuple(seed + k for k in held_out),
+                 "fresh_seeds": tuple(seed + k for k in fresh), "pooled": pooled,
+                 "earlier": bracketed_onsets(earlier, setup)["per_stream"]}
     return out, bracketed, nan_band_onsets(goal, traj, t, pos, seed)
 
 
@@ -163,11 +184,14 @@ def nan_band_onsets(goal, traj, t, pos, seed: int) -> dict:
 BRACKETED_S = 0.6e-3
 
 
-def bracketed_onsets(streams) -> dict:
+def bracketed_onsets(streams, setup=None) -> dict:
     """Today's detector over the streams [(trajectory, t, pos)]: the onset mean abs error
     (ms, with its interval) of the matched saccades >= 1 deg whose onset is bracketed
     (:data:`BRACKETED_S`) and of the rest (NaN bands or the blanking beside it), and how many
-    of each."""
+    of each; per stream the valid share, with ``setup`` the share of bands whose gaze meets
+    the screen and the valid share on and off it, the saccades >= 1 deg, those missed, missed
+    in the dark (fewer than 20 % of the bands within 10 ms of it valid) and missed off the
+    screen (a band within 10 ms of it off the screen)."""
     from .events_score import mean_ci
 
     err, unc, per = [], [], []
@@ -182,10 +206,16 @@ def bracketed_onsets(streams) -> dict:
         unc.append(ev.onset_uncertainty_s[m.match[hit]])
         ok = np.isfinite(pos).all(axis=1)
         missed = np.flatnonzero(big & (m.match < 0))
-        dark = sum(ok[(t >= truth.onset_s[i] - 0.01) & (t <= truth.offset_s[i] + 0.01)].mean() < 0.2
-                   for i in missed)
-        per.append({"valid": float(ok.mean()), "n": int(big.sum()), "missed": int(missed.size),
-                    "missed_dark": int(dark), "onset_mae_ms": float(err[-1].mean())})
+        near = [(t >= truth.onset_s[i] - 0.01) & (t <= truth.offset_s[i] + 0.01) for i in missed]
+        row = {"valid": float(ok.mean()), "n": int(big.sum()), "missed": int(missed.size),
+               "missed_dark": int(sum(ok[w].mean() < 0.2 for w in near)),
+               "onset_mae_ms": float(err[-1].mean()) if err[-1].size else math.nan}
+        if setup is not None:
+            on = on_screen_mask(setup, tr, t)
+            row.update(on_screen=float(on.mean()), valid_on=float(ok[on].mean()) if on.any() else math.nan,
+                       valid_off=float(ok[~on].mean()) if (~on).any() else math.nan,
+                       missed_off=int(sum(not on[w].all() for w in near)))
+        per.append(row)
     err, unc = np.concatenate(err), np.concatenate(unc)
     inside = unc <= BRACKETED_S
     return {"streams": len(streams), "per_stream": per,
@@ -194,28 +224,29 @@ def bracketed_onsets(streams) -> dict:
             "gap_share_of_error": float(err[~inside].sum() / err.sum()) if err.sum() > 0 else math.nan}
 
 
-def stream_latency(t, pos, traj, frame_s: float) -> dict:
+def stream_latency(t, pos, traj, frame_s: float, early: bool = False) -> dict:
     """Latency of :class:`EventStream` (reported minus true onset, ms) over the matched
-    saccades >= 1 deg, samples pushed a frame at a time."""
-    stream = EventStream()
-    on, off, rep = [], [], []
+    saccades >= 1 deg, samples pushed a frame at a time (``early``: the stream's early
+    reports), with the summary (:func:`summarise`) of the streamed events."""
+    stream = EventStream(early=early)
+    got = []
     edges = np.arange(t[0], t[-1] + frame_s, frame_s)
     idx = np.searchsorted(t, edges)
     for a, b in zip(idx[:-1], idx[1:]):
         if b > a:
             ev = stream.push(t[a:b], pos[a:b])
-            on.extend(ev.onset_s)
-            off.extend(ev.offset_s)
+            got.append((ev.onset_s, ev.offset_s, ev.amplitude_deg, ev.peak_velocity_deg_s))
+    on, off, amp, peak = (np.concatenate([g[k] for g in got]) for k in range(4))
     rep = np.array(stream.reported_at_s)
     truth = truth_events(traj, float(t[0]), float(t[-1]))
-    m = match_events(np.array(on), np.array(off), np.zeros(len(on)), np.zeros(len(on)), truth,
-                     0.5e-3, float(t[0]), float(t[-1]))
+    m = match_events(on, off, amp, peak, truth, 0.5 * float(np.median(np.diff(t))),
+                     float(t[0]), float(t[-1]))
     hit = (m.match >= 0) & (truth.amplitude_deg >= 1.0)
     lat = 1e3 * (rep[m.match[hit]] - truth.onset_s[hit])
     after_off = 1e3 * (rep[m.match[hit]] - truth.offset_s[hit])
     return {"n": int(hit.sum()), "median_ms": float(np.median(lat)),
             "p95_ms": float(np.percentile(lat, 95)), "after_offset_median_ms": float(np.median(after_off)),
-            "settle_ms": 1e3 * EventParams().settle_s}
+            "settle_ms": 1e3 * stream.wait_s, "summary": summarise(m), "early": early}
 
 
 def run_full_event_study(lightings: dict, *, out_dir, report_dir, seed: int = 0, progress=None,
@@ -275,7 +306,8 @@ def run_full_event_study(lightings: dict, *, out_dir, report_dir, seed: int = 0,
                              "summary": summ, "matched": m})
             if lab == GOAL[0] and name == "16 pulses, S = 524":
                 t0 = time.perf_counter()
-                latency = stream_latency(t, pos, traj, setup.sensor.frame_period_s)
+                latency = [stream_latency(t, pos, traj, setup.sensor.frame_period_s, early)
+                           for early in (False, True)]
                 timings["stream"] += time.perf_counter() - t0
                 traces["goal"] = (t, pos, traj)
                 t0 = time.perf_counter()
@@ -336,6 +368,22 @@ def cli_conditions(rows) -> list:
     return out
 
 
+def invalid_reasons(folder: Path, frames: int) -> list:
+    """(reason, count) of the tracked rendered samples that are not ``ok``, most first (the
+    ``reason`` column of the samples CSV)."""
+    import csv
+    from collections import Counter
+
+    with open(Path(folder) / f"samples_{frames}.csv", newline="") as f:
+        rows = csv.DictReader(line for line in f if not line.startswith("#"))
+        return Counter(r["reason"] for r in rows if r["reason"] != "ok").most_common()
+
+
+#: A rendered sample further than this many noise SDs from the truth is an outlier (a
+#: misidentified band): counted in the report, left in the samples the detectors see.
+OUTLIER_SDS = 5.0
+
+
 def rendered_comparison(scene, out_dir: Path, seed: int, *, render: bool):
     """Score the tracked rendered sub-sequence (the frames rendered so far, from frame 0) and
     the simulation of the same trajectory and setting; None when nothing is rendered."""
@@ -347,19 +395,32 @@ def rendered_comparison(scene, out_dir: Path, seed: int, *, render: bool):
     setup, traj, t, pos, truth_pos, frames, planned = got
     ok = np.isfinite(pos).all(axis=1)
     # per-sample noise of the renders: the tracked gaze minus the truth at the strobe instant,
-    # less its median (a calibration bias moves no event), over the valid samples
+    # less its median (a calibration bias moves no event), over the valid samples; its SD from
+    # the median absolute deviation (1.4826 MAD, the SD of a Gaussian), as the detector's own
+    # median-based noise estimate: a few misidentified bands (errors of degrees) would make an
+    # RMS ten times the noise of the rest, and a twin with that much Gaussian noise everywhere
     d = pos[ok] - truth_pos[ok]
     d -= np.median(d, axis=0)
-    sd_rendered = float(np.sqrt(np.mean(d ** 2)))  # RMS per axis
+    sd_rendered = float(np.mean(1.4826 * np.median(np.abs(d), axis=0)))
+    rms = float(np.sqrt(np.mean(d ** 2)))
+    outliers = float(np.mean(np.hypot(d[:, 0], d[:, 1]) > OUTLIER_SDS * sd_rendered))
     sim_setting = band_setting("rendered twin", setup, 16, 524, sd_rendered)
     ts, ps = simulate_stream(sim_setting, traj, float(t[-1]) + 1e-3, seed)
     keep = ts >= t[0]
     ts, ps = ts[keep], ps[keep]
-    out = {"frames": frames, "planned": planned, "noise_sd_deg": sd_rendered,
+    # the second twin: the renders' own instants and valid bands, the simulated noise
+    rng = np.random.default_rng(np.random.SeedSequence([seed, 342]))
+    pm = truth_pos + rng.normal(0.0, sd_rendered, truth_pos.shape)
+    pm[~ok] = np.nan
+    out = {"frames": frames, "planned": planned, "noise_sd_deg": sd_rendered, "rms_deg": rms,
+           "reasons": invalid_reasons(out_dir / "designed", frames),
+           "outliers": outliers,
            "valid_rendered": float(ok.mean()), "valid_simulated": float(np.isfinite(ps).all(axis=1).mean())}
     for det in DETECTORS:
         mr, sr = score(sim_setting, traj, t, pos, det)
         ms, ss = score(sim_setting, traj, ts, ps, det)
-        out[det] = {"rendered": sr, "simulated": ss, "n": int((mr.truth.amplitude_deg >= 1).sum()),
+        sm = score(sim_setting, traj, t, pm, det)[1]
+        out[det] = {"rendered": sr, "simulated": ss, "simulated, the renders' valid bands": sm,
+                    "n": int((mr.truth.amplitude_deg >= 1).sum()),
                     "n_all": int(mr.truth.onset_s.size)}
     return out

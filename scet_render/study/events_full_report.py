@@ -115,7 +115,7 @@ def rendered_table(rendered) -> str:
     out = ("| detector | source | " + " | ".join(MEASURES[k] for k in keys) + " |\n|---|---|"
            + "---|" * len(keys) + "\n")
     for det in DET_NAMES:
-        for src in ("rendered", "simulated"):
+        for src in ("rendered", "simulated", "simulated, the renders' valid bands"):
             s = rendered[det][src]
             out += (f"| {DET_NAMES[det]} | {src} | "
                     + " | ".join(_fmt(s[k], _spec(k)) for k in keys) + " |\n")
@@ -131,13 +131,15 @@ def rendered_verdict(rendered) -> str:
         return ""
     lines = []
     for det in DET_NAMES:
-        r, s = rendered[det]["rendered"], rendered[det]["simulated"]
-        for k in ("onset_mae_ms", "offset_mae_ms", "detected_1deg"):
-            if all(math.isfinite(x) for x in (*r[k], *s[k])):
-                same = _overlap(r[k], s[k])
-                lines.append(f"- {DET_NAMES[det]}, {MEASURES[k]}: rendered {_fmt(r[k], _spec(k))}, "
-                             f"simulated {_fmt(s[k], _spec(k))}: intervals "
-                             + ("overlap" if same else "**do not overlap**"))
+        r = rendered[det]["rendered"]
+        for twin in ("simulated", "simulated, the renders' valid bands"):
+            s = rendered[det][twin]
+            for k in ("onset_mae_ms", "offset_mae_ms", "detected_1deg"):
+                if all(math.isfinite(x) for x in (*r[k], *s[k])):
+                    same = _overlap(r[k], s[k])
+                    lines.append(f"- {DET_NAMES[det]}, {MEASURES[k]}: rendered "
+                                 f"{_fmt(r[k], _spec(k))}, {twin} {_fmt(s[k], _spec(k))}: "
+                                 "intervals " + ("overlap" if same else "**do not overlap**"))
     return "\n".join(lines) + "\n"
 
 
@@ -255,13 +257,13 @@ def _rendered_figure(rendered, path: Path) -> None:
     keys = ("onset_mae_ms", "offset_mae_ms", "detected_1deg")
     fig, axes = plt.subplots(1, len(keys), figsize=(12, 3.4))
     for ax, key in zip(axes, keys):
-        for j, src in enumerate(("rendered", "simulated")):
+        for j, src in enumerate(("rendered", "simulated", "simulated, the renders' valid bands")):
             v = np.array([rendered[d][src][key] for d in DET_NAMES], float)
-            x = np.arange(len(DET_NAMES)) + 0.4 * j
-            ax.bar(x, v[:, 0], width=0.4, label=src)
+            x = np.arange(len(DET_NAMES)) + 0.27 * j
+            ax.bar(x, v[:, 0], width=0.27, label=src)
             err = np.array([v[:, 0] - v[:, 1], v[:, 2] - v[:, 0]])
             ax.errorbar(x, v[:, 0], yerr=_bars(err), fmt="none", ecolor="k", capsize=3)
-        ax.set_xticks(np.arange(len(DET_NAMES)) + 0.2, list(DET_NAMES.values()), fontsize=8)
+        ax.set_xticks(np.arange(len(DET_NAMES)) + 0.27, list(DET_NAMES.values()), fontsize=8)
         ax.set_title(MEASURES[key] + ", 95 %", fontsize=8)
     axes[0].legend(fontsize=8)
     fig.tight_layout()
@@ -296,6 +298,24 @@ def blanking_markdown(blanking, rows) -> str:
     return out
 
 
+def stream_table(latency) -> str:
+    """The streaming forms (:func:`scet_render.study.events_full.stream_latency`): latency
+    and the streamed events' scores."""
+    if not latency:
+        return "Not measured in this run.\n"
+    keys = ("detected_1deg", "false_per_min", "onset_mae_ms", "offset_mae_ms",
+            "peak_rel_err_pct", "micro_detected")
+    out = ("| stream | wait after the offset (ms) | saccades >= 1 deg | latency after the true "
+           "onset, median (ms) | 95th percentile (ms) | after the true offset, median (ms) | "
+           + " | ".join(MEASURES[k] for k in keys) + " |\n|---|---|---|---|---|---|"
+           + "---|" * len(keys) + "\n")
+    for r in latency:
+        out += (f"| {'early' if r['early'] else 'settled'} | {r['settle_ms']:.0f} | {r['n']} | "
+                f"{r['median_ms']:.1f} | {r['p95_ms']:.1f} | {r['after_offset_median_ms']:.1f} | "
+                + " | ".join(_fmt(r["summary"][k], _spec(k)) for k in keys) + " |\n")
+    return out
+
+
 def write_full_report(report_dir: Path, rows, latency, rendered, traces, timings, labels,
                       counts, noise_table, blanking=(), changes=None) -> Path:
     """Write ``events.md`` and its figures; ``counts`` (saccades, microsaccades) per lighting,
@@ -314,19 +334,27 @@ def write_full_report(report_dir: Path, rows, latency, rendered, traces, timings
     noise_text = "; ".join(f"`{k}` " + " / ".join(f"{v:.3f}" for v in row.values())
                            for k, row in noise_table.items())
     scenes = ", ".join(f"{k}: `{v}`" for k, v in labels.items())
-    lat = ("not measured" if latency is None else
-           f"median {latency['median_ms']:.1f} ms after the true onset (95th percentile "
-           f"{latency['p95_ms']:.1f} ms) over {latency['n']} saccades >= 1 deg, "
-           f"{latency['after_offset_median_ms']:.1f} ms after the true offset (median; the settle "
-           f"time is {latency['settle_ms']:.0f} ms, the rest is the wait for the frame's samples)")
+    lat = stream_table(latency)
     rend_head = "" if rendered is None else (
         f"{rendered['frames']} of the planned {rendered['planned']} frames rendered and tracked "
         f"(designed lighting, 16 pulses per frame, S = 524, 640 x 480, {RENDER_SPP} spp, "
         f"{RENDER_CORNEA} cornea; the dataset's `saccades` trajectory, seed 0): "
         f"{rendered['scet']['n_all']} saccades scored ({rendered['scet']['n']} of >= 1 deg). Valid bands: rendered "
         f"{100 * rendered['valid_rendered']:.1f} %, simulated {100 * rendered['valid_simulated']:.1f} %. "
-        f"Per-sample noise of the tracked renders (RMS per axis about the truth, less the median "
-        f"bias): {rendered['noise_sd_deg']:.4f} deg, used by the simulation in this comparison.")
+        f"Per-sample noise of the tracked renders (per axis about the truth, less the median "
+        f"bias; 1.4826 times the median absolute deviation): {rendered['noise_sd_deg']:.4f} deg, "
+        f"used by the simulation in this comparison (the RMS is {rendered['rms_deg']:.4f} deg: "
+        f"{100 * rendered['outliers']:.1f} % of the valid rendered samples are further than 5 "
+        "such SDs from the truth, misidentified bands, which the simulation does not make). "
+        "Two simulated twins of the same trajectory and setting: the simulator's own band "
+        "validity (simulated), and the renders' own instants and valid bands with the simulated "
+        "noise (no outliers), which separates what the valid bands change from what the "
+        "outliers do. The tracker's reasons for the rendered bands it gave no gaze: "
+        + ", ".join(f"{k} {v}" for k, v in rendered["reasons"]) + "."
+        + ("" if rendered["scet"]["n"] >= 30 else
+           f" With {rendered['scet']['n']} saccades >= 1 deg (issue 34 asks for at least 30) the "
+           "intervals are wide: that they overlap shows no disagreement, and cannot show "
+           "agreement either; `scet study events` without `--no-render` resumes the render."))
     text = f"""# Saccades at the band rate: event timing on hundreds of saccades
 
 Generated by `scet study events` (full mode; `scet_render.study.events_full`). Lightings:
@@ -367,8 +395,8 @@ with 50 ms of samples on each side.
 {goal_table(rows)}
 Goal met: "yes" when the value and its whole interval meet the goal; "yes, interval reaches
 past it" when the value meets it but the interval does not rule out missing it. These are one
-trajectory per lighting; the next section measures the goal setting on four more, where the
-designed lighting's dark regions (no band identified) cost detections and timing.
+trajectory per lighting; the next two sections measure the goal setting on eight more
+(four held out from the second round, four fresh).
 
 {changes_section(changes)}
 ## Where the error comes from (designed lighting, 16 pulses, S = 524)
@@ -396,9 +424,16 @@ bands of each.
 {blanking_markdown(blanking, rows)}
 ## Streaming
 
-`estimator.events.EventStream`, samples pushed a frame (16.6 ms) at a time, goal setting:
-{lat}.
+`estimator.events.EventStream`, samples pushed a frame (16.6 ms) at a time, goal setting
+(the study's trajectory): each event reported once its offset is the wait old, at the first
+push after. Settled (the default): {1e3 * p.settle_s:g} ms, every velocity window and the
+amplitude window full and the minimum intersaccadic interval waited out, so the streamed
+events are the offline ones. Early (`EventStream(early=True)`): {1e3 * p.early_settle_s:g} ms,
+the event's own fits, edge fit and amplitude final, and an event starting within the minimum
+interval after a reported one taken as its continuation. Latency over the matched saccades
+>= 1 deg, and the streamed events scored as the offline ones are:
 
+{lat}
 ## Rendered sub-sequence against the simulation
 
 {rend_head}

@@ -23,7 +23,9 @@ from estimator.setup import Setup
 
 #: Frames of the rendered sub-sequence: 570 frames hold 36 of the trajectory's saccades
 #: (seed 0), more than the 30 issue 34 asks for; ~5 s a frame at 4 spp (dielectric, MNEE;
-#: measured over 6 frames on a shared 2-core machine, ~2.5 s with the conductor cornea).
+#: measured over 6 frames on a shared 2-core machine, ~2.5 s with the conductor cornea), but
+#: 12-20 s a frame with one Dr.Jit thread at nice 10 on that machine under load (issue 34's
+#: third round rendered 206 frames in 48 min).
 RENDER_FRAMES = 570
 RENDER_SPP = 4
 #: Today's default cornea (the first full-size study rendered it as a conductor).
@@ -110,9 +112,9 @@ def rendered_samples(scene, out_dir, *, seed: int = 0, render: bool = True):
         atomic_write(folder / TIMING_NAME, timing_document({f: f * dt for f in range(n)},
                                                            exposure_s=setup.sensor.exposure_s,
                                                            strobe=setup.strobe))
-    calibration = calibrate_from_folder(out / "calibration", load_scene(scene))
     csv = out / f"samples_{n}.csv"
-    if not csv.is_file():
+    if not csv.is_file():  # tracked once per frame count
+        calibration = calibrate_from_folder(out / "calibration", load_scene(scene))
         track_folder(folder, setup, calibration, csv, method="geometric")
     t, pos = gaze_from_samples_csv(csv, setup)
     traj = dataset_trajectory(setup, "saccades", RENDER_FRAMES, seed)

@@ -51,11 +51,37 @@ class StreamSetting:
     invalid_bands: bool = True
 
 
-def study_trajectory(setup, n_saccades: int, n_micro: int, seed: int):
+#: Share of the screen's width and height kept clear at each edge by the fixation targets.
+SCREEN_MARGIN = 0.1
+#: The margin where no direction keeps a saccade's target inside :data:`SCREEN_MARGIN` (a
+#: saccade near 20 deg from the middle of the screen, whose half-diagonal with the 10 %
+#: margin is ~18 deg of gaze): 3 % leaves ~21 deg (paper_sim's screen).
+FALLBACK_MARGIN = 0.03
+#: Directions tried for each saccade (every 0.5 deg).
+N_DIRECTIONS = 720
+
+
+def study_trajectory(setup, n_saccades: int, n_micro: int, seed: int, *,
+                     keep_on_screen: bool = True):
     """Fixations joined by ``n_saccades`` saccades (amplitudes uniform in
     :data:`SACCADE_RANGE_DEG`) and ``n_micro`` microsaccades (:data:`MICRO_RANGE_DEG`) in a
-    seeded random order and random directions, kept on the screen; fixations uniform in
-    :data:`FIXATION_RANGE_S` with the dataset's fixational drift and tremor."""
+    seeded random order, each in a direction drawn uniformly among those that keep its target
+    on the screen less :data:`SCREEN_MARGIN` of it at each edge (else less
+    :data:`FALLBACK_MARGIN`); fixations uniform in :data:`FIXATION_RANGE_S` with the dataset's
+    fixational drift and tremor.
+
+    The screen is the region the lighting is designed for (``scet design-lights`` poses span
+    it): a gaze off it measures a lighting outside its design. ``keep_on_screen`` False: the
+    earlier rule (issue 34's first two rounds), kept so that the study can show what it did:
+    a random direction, each component mirrored once where it left the screen less the margin
+    and then kept, so trajectories wandered off the screen (pitch up to 90 deg on seed 2).
+
+    Raises
+    ------
+    ValueError
+        No direction keeps a saccade on the screen even with the fallback margin (a screen
+        too small for the amplitudes).
+    """
     from estimator.eye import gaze_direction
     from scet_render.motion import FixationalNoise, fixation_sequence
 
@@ -64,34 +90,90 @@ def study_trajectory(setup, n_saccades: int, n_micro: int, seed: int):
     amps = amps[rng.permutation(amps.size)]
     c = setup.eye.rotation_center_m
     scr = setup.screen
+    (x0, x1), (y0, y1) = scr.x_range_m, scr.y_range_m
 
-    def angles_of(p):
-        d = p - c
-        return math.atan2(d[0], -d[2]), math.asin(d[1] / np.linalg.norm(d))
+    def on_screen(yaw, pitch, margin):
+        d = gaze_direction(yaw, pitch)  # (k, 3)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = (scr.z_m - c[2]) / d[..., 2]
+        x, y = c[0] + s * d[..., 0], c[1] + s * d[..., 1]
+        mx, my = margin * (x1 - x0), margin * (y1 - y0)
+        return (s > 0) & (x >= x0 + mx) & (x <= x1 - mx) & (y >= y0 + my) & (y <= y1 - my)
 
     def point_of(yaw, pitch):
         d = gaze_direction(yaw, pitch)
         s = (scr.z_m - c[2]) / d[2]
         return c + s * d
 
+    mid = np.array([0.5 * (x0 + x1), 0.5 * (y0 + y1), scr.z_m]) - c
+    yaw, pitch = math.atan2(mid[0], -mid[2]), math.asin(mid[1] / np.linalg.norm(mid))
+    targets = [point_of(yaw, pitch)]
+    th = 2 * math.pi * np.arange(N_DIRECTIONS) / N_DIRECTIONS
+    if not keep_on_screen:
+        return _mirrored_once(setup, amps, rng, (yaw, pitch), point_of)
+    for a in np.radians(amps):
+        ny, np_ = yaw + a * np.cos(th), pitch + a * np.sin(th)
+        for margin in (SCREEN_MARGIN, FALLBACK_MARGIN):
+            ok = np.flatnonzero(on_screen(ny, np_, margin))
+            if ok.size:
+                break
+        else:
+            raise ValueError(f"scene {setup.name}: no direction keeps a "
+                             f"{math.degrees(a):.1f}-deg saccade from yaw {math.degrees(yaw):.1f}, "
+                             f"pitch {math.degrees(pitch):.1f} deg on its screen")
+        k = ok[min(int(rng.uniform() * ok.size), ok.size - 1)]
+        yaw, pitch = float(ny[k]), float(np_[k])
+        targets.append(point_of(yaw, pitch))
+    fix = rng.uniform(*FIXATION_RANGE_S, len(targets))
+    return fixation_sequence(setup.eye, np.array(targets), fix, rng, noise=FixationalNoise())
+
+
+def _mirrored_once(setup, amps, rng, start, point_of):
+    """The trajectory of :func:`study_trajectory` by the earlier rule (``keep_on_screen``
+    False), draw for draw as the first two rounds made it."""
+    from estimator.eye import fick_angles
+    from scet_render.motion import FixationalNoise, fixation_sequence
+
+    c = setup.eye.rotation_center_m
+    scr = setup.screen
     (x0, x1), (y0, y1) = scr.x_range_m, scr.y_range_m
-    yaw_lo, _ = angles_of(np.array([x0, 0.0, scr.z_m]) + [0.1 * (x1 - x0), 0, 0])
-    yaw_hi, _ = angles_of(np.array([x1, 0.0, scr.z_m]) - [0.1 * (x1 - x0), 0, 0])
+
+    def angles_of(p):
+        yaw, pitch = fick_angles(p - c)
+        return float(yaw), float(pitch)
+
+    yaw_lo, _ = angles_of(np.array([x0 + 0.1 * (x1 - x0), 0.0, scr.z_m]))
+    yaw_hi, _ = angles_of(np.array([x1 - 0.1 * (x1 - x0), 0.0, scr.z_m]))
     _, pit_lo = angles_of(np.array([0.0, y0 + 0.1 * (y1 - y0), scr.z_m]))
     _, pit_hi = angles_of(np.array([0.0, y1 - 0.1 * (y1 - y0), scr.z_m]))
-    yaw, pitch = angles_of(np.array([0.5 * (x0 + x1), 0.5 * (y0 + y1), scr.z_m]))
+    yaw, pitch = start
     targets = [point_of(yaw, pitch)]
     for a in np.radians(amps):
-        th = rng.uniform(0, 2 * math.pi)
-        ny, np_ = yaw + a * math.cos(th), pitch + a * math.sin(th)
+        t = rng.uniform(0, 2 * math.pi)
+        ny, np_ = yaw + a * math.cos(t), pitch + a * math.sin(t)
         if not yaw_lo <= ny <= yaw_hi:
-            ny = yaw - a * math.cos(th)
+            ny = yaw - a * math.cos(t)
         if not pit_lo <= np_ <= pit_hi:
-            np_ = pitch - a * math.sin(th)
+            np_ = pitch - a * math.sin(t)
         yaw, pitch = ny, np_
         targets.append(point_of(yaw, pitch))
     fix = rng.uniform(*FIXATION_RANGE_S, len(targets))
     return fixation_sequence(setup.eye, np.array(targets), fix, rng, noise=FixationalNoise())
+
+
+def on_screen_mask(setup, traj, t) -> np.ndarray:
+    """(m,) bool: at which instants ``t`` (m,) s the gaze of ``traj`` meets the screen."""
+    from estimator.eye import gaze_direction
+
+    yaw, pitch = traj.angles_at(np.asarray(t, dtype=np.float64))
+    d = gaze_direction(yaw, pitch)
+    c = setup.eye.rotation_center_m
+    scr = setup.screen
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = (scr.z_m - c[2]) / d[:, 2]
+    x, y = c[0] + s * d[:, 0], c[1] + s * d[:, 1]
+    (x0, x1), (y0, y1) = scr.x_range_m, scr.y_range_m
+    return (s > 0) & (x >= x0) & (x <= x1) & (y >= y0) & (y <= y1)
 
 
 def band_instants(setup, duration_s: float):

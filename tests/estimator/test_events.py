@@ -127,6 +127,55 @@ def test_stream_reports_the_offline_events_after_their_settle_time():
     assert (lat >= settle).all() and (lat <= settle + 10 * PERIOD_S + FRAME_S).all()
 
 
+def _stream(t, x, **kw):
+    stream = EventStream(**kw)
+    got = []
+    for a in range(0, t.size, 10):  # one frame's bands at a time
+        ev = stream.push(t[a:a + 10], x[a:a + 10])
+        got.extend(zip(ev.onset_s, ev.offset_s, ev.amplitude_deg))
+    return stream, np.array(got).reshape(-1, 3)
+
+
+def test_early_stream_reports_the_same_events_sooner():
+    """EventStream(early=True) reports each event early_settle_s (10 ms) after its offset
+    rather than settle_s (22 ms): the same onsets, offsets and amplitudes as the offline
+    detector (within the stream's own noise estimate), 12 ms sooner up to the push grid."""
+    t = band_times(1.5)
+    rng = np.random.default_rng(3)
+    x = saccade(t, 0.4, 6.0, 0.034) + saccade(t, 0.9, 12.0, 0.047, (0, 1)) \
+        + rng.normal(0, 0.01, (t.size, 2))
+    offline = detect_events(t, x)
+    p = EventParams()
+    assert p.early_settle_s == pytest.approx(0.010) and p.settle_s == pytest.approx(0.022)
+    late, got_late = _stream(t, x)
+    early, got = _stream(t, x, early=True)
+    assert got.shape == (2, 3)
+    np.testing.assert_allclose(got[:, 2], offline.amplitude_deg, atol=0.02)
+    np.testing.assert_allclose(got[:, :2], got_late[:, :2], atol=PERIOD_S)
+    lat = np.array(early.reported_at_s) - offline.offset_s
+    assert (lat >= p.early_settle_s).all() and (lat <= p.early_settle_s + 10 * PERIOD_S + FRAME_S).all()
+    assert (np.array(early.reported_at_s) <= np.array(late.reported_at_s)).all()
+
+
+def test_early_stream_takes_an_event_within_the_interval_as_a_continuation():
+    """Two movements 12 ms apart (less than the 20-ms minimum intersaccadic interval): the
+    offline detector merges them once both have ended; both streams have reported the first
+    by then (the settled one 22 ms after its offset, the second still under way) and report
+    nothing more: one event, not a false second one."""
+    t = band_times(1.0)
+    rng = np.random.default_rng(4)
+    x = saccade(t, 0.4, 3.0, 0.030) + saccade(t, 0.442, 1.5, 0.025) \
+        + rng.normal(0, 0.005, (t.size, 2))
+    offline = detect_events(t, x)
+    assert offline.count == 1 and offline.amplitude_deg[0] == pytest.approx(4.5, abs=0.1)
+    _, late = _stream(t, x)
+    _, early = _stream(t, x, early=True)
+    assert late.shape[0] == 1 and early.shape[0] == 1
+    assert early[0, 0] == pytest.approx(offline.onset_s[0], abs=PERIOD_S)
+    assert early[0, 2] == pytest.approx(3.0, abs=0.15)  # the first part's amplitude
+    assert late[0, 2] == pytest.approx(3.0, abs=0.15)
+
+
 @pytest.mark.parametrize("times, what", [([0.0, 0.001, 0.001], "repeats"),
                                          ([0.0, 0.002, 0.001], "is before")])
 def test_samples_out_of_order_name_the_sample(times, what):
