@@ -214,10 +214,11 @@ def _reading(defocus: list, optics: list) -> str:
 
 
 def report(setup: Setup, defocus: list, optics: list, *, spp: int, seed: int,
-           poses: int = len(POSES), command: str | None = None, gaze: str | None = None) -> str:
+           poses: int = len(POSES), command: str | None = None, gaze: str | None = None,
+           glint_s: float | None = None) -> str:
     """``reports/lens.md``: the two tables, the gaze section ``gaze`` (markdown of
     :func:`scet_render.study.lens_gaze_report.gaze_section`, None: not run) and what they leave
-    out; ``command`` is the command line that made it."""
+    out; ``command`` is the command line that made it, ``glint_s`` the glint tables' run time."""
     head = ("| condition | focal (px) | lens | blur at the glints (px) | glints | found | "
             "centroid median (px) | p90 (px) | vs pinhole labels (px) |\n|---|---|---|---|---|---|"
             "---|---|---|")
@@ -236,7 +237,8 @@ through the lens's distortion) to the nearest detection within {MATCH_PX:g} px. 
 thin-lens disc diameter c = A |d - d_f| / d x f / (d_f - f) of a point at the glints' virtual
 image depth (apex depth + the convex mirror's image distance, 1/v = 2/r_c + 1/u). "vs pinhole
 labels": the same detections against the undistorted labels, what a tracker that ignores
-the distortion is off by.
+the distortion is off by.""" + ("" if glint_s is None else f""" The glint tables took
+{glint_s / 60:.1f} min on this machine.""") + f"""
 
 ## Glint centroids against defocus (the scene's lens, focus moved off the glints' plane)
 
@@ -285,12 +287,14 @@ def run_study(setup: Setup, *, spp: int = 16, seed: int = 0, defocus_mm=(0.0, 2.
         gaze_config = gaze_config or CONFIG
         gaze_conds = gaze_conditions(setup)
     total = len(conditions) + len(optics) + len(gaze_conds)
+    t0 = time.perf_counter()
     results = []
     for i, c in enumerate(conditions + optics):
         results.append(measure(setup, c, spp=spp, seed=seed, poses=POSES[:poses]))
         if progress is not None:
             progress(i + 1, total)
     d, o = results[:len(conditions)], results[len(conditions):]
+    glint_s = time.perf_counter() - t0
     section = None
     if gaze_conds:
         from .lens_gaze import run_gaze_study
@@ -302,4 +306,4 @@ def run_study(setup: Setup, *, spp: int = 16, seed: int = 0, defocus_mm=(0.0, 2.
                            progress=(lambda k, _: progress(done + k, total)) if progress else None)
         section = gaze_section(g, gaze_config, time.perf_counter() - t, glints=o)
     return report(setup, d, o, spp=spp, seed=seed, poses=poses, command=command,
-                  gaze=section), d, o
+                  gaze=section, glint_s=glint_s), d, o
