@@ -111,10 +111,19 @@ def _recommendation(lens: list, glints: list) -> str:
         return "* Recommendation: no stock-lens condition was measured."
     best = max(stock, key=lambda r: (round(_valid(r), 3), -_median(r)))
     n = best.condition.f_number
+    light = ("at the stock strobe power" if n == 2.9 else
+             "with the strobe power raised to keep the 1 ms exposure's signal")
     text = (f"* Recommendation (from these numbers): focus the stock lens on the glints' virtual "
             f"images ({best.camera.focus_distance_m * 1e3:.1f} mm from the camera, ~3.5 mm "
-            f"behind the corneal apex) at F{n:g} ({_summary(best)} with the strobe power "
-            f"raised to keep the 1 ms exposure's signal)")
+            f"behind the corneal apex) at F{n:g} ({_summary(best)} {light})")
+    off = [r for r in lens if r.condition.focal_px == 643.0 and r.condition.focus_offset_m > 0
+           and r.condition.working_distance_m is None]
+    if off:
+        r = min(off, key=lambda r: r.condition.focus_offset_m)
+        n0 = r.condition.f_number
+        text += (f"; a focus error's blur scales as 1 / N: the "
+                 f"{r.condition.focus_offset_m * 1e3:+g} mm condition's {r.blur_px:.2f} px at "
+                 f"F{n0:g} is {r.blur_px * n0 / 5.6:.2f} px at F5.6")
     g_ok = [g for g in glints if isinstance(g, LensResult) and g.condition.focal_px == 643.0
             and g.condition.working_distance_m is None and g.condition.focus_offset_m == 0.0]
     same = [g for g in g_ok if g.condition.f_number == n]
