@@ -135,6 +135,7 @@ def test_a_pinhole_tracker_of_a_distorted_lens_is_worse_than_the_right_model(tmp
     cond = GazeCondition(LensCondition("distorted", 643.0, None, None), ("lens", "pinhole"))
     lens, pinhole = measure_gaze(setup, cond, tmp_path, config=cfg,
                                  scene_text=open(setup.source, encoding="utf-8").read())
+    # Measured 2026-12-04: (a) 36 % valid, median 0.033 deg; (b) 27 %, 0.113 deg.
     a, b = lens.stats["geometric"], pinhole.stats["geometric"]
-    assert a.valid > 0.2
-    assert a.median_deg < b.median_deg or b.valid < a.valid
+    assert a.valid > 0.2 and b.valid <= a.valid
+    assert a.median_deg < 0.7 * b.median_deg
