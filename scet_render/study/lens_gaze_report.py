@@ -12,6 +12,10 @@ from .lens import LensResult
 
 #: A condition "keeps" the in-focus result when its valid share is at least this share of it.
 KEEP_VALID = 0.9
+#: In-focus stock-lens results within this many valid-share points (a share) and this ratio of
+#: the median error count as alike (a judgement, not a measured spread: the default run has
+#: 264 bands of two fixations, so one fixation's bands move the share by points).
+ALIKE_VALID, ALIKE_MEDIAN = 0.02, 1.1
 
 _HEAD = ("| condition | tracker | focal (px) | lens | blur at the glints (px) | bands | "
          "geometric valid | median (deg) | p95 (deg) | polynomial valid | median (deg) | "
@@ -110,12 +114,22 @@ def _recommendation(lens: list, glints: list) -> str:
     if not stock:
         return "* Recommendation: no stock-lens condition was measured."
     best = max(stock, key=lambda r: (round(_valid(r), 3), -_median(r)))
+    # In-focus results this close are alike at these sample sizes: take the larger f-number of
+    # them, for its depth of field (a focus error's blur scales as 1 / N).
+    alike = [r for r in stock if _valid(r) >= _valid(best) - ALIKE_VALID
+             and _median(r) <= ALIKE_MEDIAN * _median(best)] or [best]
+    best = max(alike, key=lambda r: r.condition.f_number)
     n = best.condition.f_number
     light = ("at the stock strobe power" if n == 2.9 else
              "with the strobe power raised to keep the 1 ms exposure's signal")
     text = (f"* Recommendation (from these numbers): focus the stock lens on the glints' virtual "
             f"images ({best.camera.focus_distance_m * 1e3:.1f} mm from the camera, ~3.5 mm "
-            f"behind the corneal apex) at F{n:g} ({_summary(best)} {light})")
+            f"behind the corneal apex) at F{n:g} ({_summary(best)} {light}")
+    if len(alike) > 1:
+        text += ("; in focus " + " and ".join(f"F{r.condition.f_number:g}" for r in alike) +
+                 f" are alike (within {100 * ALIKE_VALID:g} points valid and "
+                 f"{ALIKE_MEDIAN:g}x the median), so the larger f-number, for its depth of field")
+    text += ")"
     off = [r for r in lens if r.condition.focal_px == 643.0 and r.condition.focus_offset_m > 0
            and r.condition.working_distance_m is None]
     if off:
@@ -132,6 +146,13 @@ def _recommendation(lens: list, glints: list) -> str:
         text += (f"; at the stock strobe power, i.e. (2.9 / {n:g})^2 = "
                  f"{(2.9 / n) ** 2:.2f} of the light, the glint detector still finds "
                  f"{100 * g.found:.0f} % of the lit glints (glint table above)")
+    longer = [r for r in lens if r.condition.focal_px > 643.0 and r.condition.focus_offset_m == 0.0
+              and r.condition.working_distance_m is None and math.isfinite(_valid(r))]
+    if longer:
+        top = max(longer, key=lambda r: (round(_valid(r), 3), -_median(r)))
+        text += (f". A longer lens helps more than any aperture or focus setting: "
+                 f"{top.condition.label} (focal {top.condition.focal_px:g} px) gives "
+                 f"{_summary(top)} against {_summary(best)}")
     return text + (". The sensor model assumes the exposure's electrons scale with the light "
                    "collected, (2.9 / N)^2, at a fixed 1 ms exposure; the strobe's real power "
                    "and the LEDs' limits are not modelled.")

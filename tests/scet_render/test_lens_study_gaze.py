@@ -139,3 +139,17 @@ def test_a_pinhole_tracker_of_a_distorted_lens_is_worse_than_the_right_model(tmp
     a, b = lens.stats["geometric"], pinhole.stats["geometric"]
     assert a.valid > 0.2 and b.valid <= a.valid
     assert a.median_deg < 0.7 * b.median_deg
+
+
+def test_recommendation_takes_the_depth_of_field_when_apertures_are_alike(designed):
+    conds = gaze_conditions(designed)
+    f29, f56, long29 = conds[0].lens, conds[3].lens, conds[4].lens
+    assert (f29.f_number, f56.f_number, long29.focal_px) == (2.9, 5.6, 1300.0)
+    rec = reading([_result(designed, f29, "lens", 0.50, 0.040),
+                   _result(designed, f56, "lens", 0.50, 0.041),
+                   _result(designed, long29, "lens", 0.55, 0.030)]).split("Recommendation")[1]
+    assert "at F5.6" in rec and "alike" in rec and "55.0 % valid" in rec
+    # A clearly better F2.9 wins instead.
+    rec = reading([_result(designed, f29, "lens", 0.50, 0.040),
+                   _result(designed, f56, "lens", 0.40, 0.041)]).split("Recommendation")[1]
+    assert "at F2.9" in rec and "alike" not in rec
