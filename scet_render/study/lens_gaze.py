@@ -97,6 +97,8 @@ class GazeResult:
         (px), the board calibration's reprojection RMS (px) and views used.
     seconds : float
         Wall time of this result (renders included for the first tracker of a condition).
+    render_s : float
+        Of which rendering (eye and board frames; ~0 where a rerun found them in the folder).
     """
 
     condition: LensCondition
@@ -109,6 +111,7 @@ class GazeResult:
     calibration_rms_px: float
     board: dict | None
     seconds: float
+    render_s: float = 0.0
 
 
 def gaze_conditions(setup: Setup) -> list:
@@ -190,13 +193,15 @@ def measure_gaze(setup: Setup, condition: GazeCondition, out_dir, *,
     for tracker in condition.trackers:
         t = time.perf_counter()
         tcam, board = tracker_camera(tracker, s, folder, seed)
+        board_s = time.perf_counter() - t
         run = validate_setup(s, config, folder, seed=seed, progress=progress,
                              scene_text=scene_text, tracker_camera=tcam, tracker_name=tracker)
         stats = {r.method: r for r in run.rows if r.source == "rendered"}
         results.append(GazeResult(c, tracker, s.camera, tcam or s.camera, blur, stats,
                                   run.correct / run.total if run.total else math.nan,
                                   float(run.calibration.quality.get("rms_px", math.nan)),
-                                  board, time.perf_counter() - t))
+                                  board, time.perf_counter() - t,
+                                  run.timings["render"] + board_s))
         g = stats.get("geometric")
         log.info("lens gaze %s / %s: valid %.2f, median %.3f deg", c.label, tracker,
                  g.valid if g else math.nan, g.median_deg if g else math.nan)

@@ -162,6 +162,7 @@ def gaze_section(results: list, config: ValidationConfig, wall_s: float,
                  glints: list | None = None) -> str:
     """The whole section: what was run, the table, the reading."""
     cfg = config
+    render_s = sum(r.render_s for r in results)
     return f"""## Gaze error and valid share (calibrated and tracked per lens)
 
 Each render condition runs the validation's pipeline (`scet_render.validate.validate_setup`):
@@ -175,7 +176,8 @@ charuco` + `scet camera calibrate`). Valid: bands with a gaze estimate; errors i
 against the true gaze; identities: identified glints whose light is right. The aperture here
 changes the defocus only: the sensor collects the same light at every f-number (the strobe
 power raised by (N / 2.9)^2); the glint tables above keep the strobe power. Gaze level run
-time: {wall_s / 60:.1f} min on this machine.
+time: {wall_s / 60:.1f} min on this machine, of which rendering {render_s / 60:.1f} min
+(renders already in the work folder are reused).
 
 {gaze_table(results)}
 
