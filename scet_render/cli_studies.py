@@ -170,24 +170,23 @@ def cmd_study_lens(args) -> int:
     from .study.lens import run_study
 
     setup = load_scene(args.scene)
-    gaze_dir, gaze_config, command = None, None, f"scet study lens {setup.name} --spp " \
-        f"{args.spp} --seed {args.seed} --poses {args.poses}"
+    gaze, steps, command = None, 0, f"scet study lens {setup.name} --spp {args.spp} --seed " \
+        f"{args.seed} --poses {args.poses}"
     if args.gaze:
         from dataclasses import replace
 
-        from .study.lens_gaze import CONFIG, gaze_conditions
+        from .study.lens_gaze import CONFIG, gaze_conditions, gaze_runner
 
-        gaze_dir = args.out
-        gaze_config = replace(CONFIG, spp=args.gaze_spp, frames=args.gaze_frames,
-                              calib_grid=(args.gaze_grid, args.gaze_grid))
+        config = replace(CONFIG, spp=args.gaze_spp, frames=args.gaze_frames,
+                         calib_grid=(args.gaze_grid, args.gaze_grid))
+        gaze, steps = gaze_runner(setup, args.out, config=config, seed=args.seed), \
+            len(gaze_conditions(setup))
         command += (f" --gaze --gaze-spp {args.gaze_spp} --gaze-frames {args.gaze_frames} "
                     f"--gaze-grid {args.gaze_grid}")
-    total = 10 + (len(gaze_conditions(setup)) if args.gaze else 0)
-    bar, update = progress_bar(total, "condition", f"study lens {setup.name}")
+    bar, update = progress_bar(10 + steps, "condition", f"study lens {setup.name}")
     try:
         text, _, _ = run_study(setup, spp=args.spp, seed=args.seed, poses=args.poses,
-                               progress=update, gaze_dir=gaze_dir, gaze_config=gaze_config,
-                               command=command)
+                               progress=update, gaze=gaze, gaze_steps=steps, command=command)
     finally:
         bar.close()
     path = atomic_write(Path(args.report_dir) / "lens.md", text)
@@ -291,10 +290,10 @@ def add_parsers(sub) -> None:
                            "calibration): minutes per condition")
     lens.add_argument("--gaze-spp", type=integer(1, 4096), default=4,
                       help="spp of the gaze renders (conductor cornea; default 4)")
-    lens.add_argument("--gaze-frames", type=integer(1, 10_000), default=8,
-                      help="banded test frames per gaze condition (15 per fixation; default 8)")
-    lens.add_argument("--gaze-grid", type=integer(2, 24), default=3,
-                      help="calibration grid N x N of the gaze conditions (default 3)")
+    lens.add_argument("--gaze-frames", type=integer(1, 10_000), default=24,
+                      help="banded test frames per gaze condition (15 per fixation; default 24)")
+    lens.add_argument("--gaze-grid", type=integer(2, 24), default=4,
+                      help="calibration grid N x N of the gaze conditions (default 4)")
     lens.add_argument("--out", type=Path, default=Path("out/lens_study"),
                       help="work folder of the gaze renders (reused by a rerun)")
     lens.add_argument("--report-dir", type=Path, default=Path("reports"))

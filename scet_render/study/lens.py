@@ -268,25 +268,21 @@ the distortion is off by.""" + ("" if glint_s is None else f""" The glint tables
 
 
 def run_study(setup: Setup, *, spp: int = 16, seed: int = 0, defocus_mm=(0.0, 2.0, 5.0, -2.0, -5.0),
-              poses: int = len(POSES), progress=None, gaze_dir=None, gaze_config=None,
+              poses: int = len(POSES), progress=None, gaze=None, gaze_steps: int = 0,
               command: str | None = None) -> tuple[str, list, list]:
     """Measure every condition at the first ``poses`` of :data:`POSES`; returns (markdown,
-    defocus results, optics results). With ``gaze_dir`` (a work folder for the renders) the
-    gaze-level conditions of :mod:`scet_render.study.lens_gaze` run too, at ``gaze_config``
-    (default :data:`scet_render.study.lens_gaze.CONFIG`), and the report holds their section."""
+    defocus results, optics results).
+
+    ``gaze``, optional: ``gaze(optics_results, progress) -> markdown`` runs the gaze-level
+    conditions (:func:`scet_render.study.lens_gaze.gaze_runner`, ``gaze_steps`` of them,
+    reported through ``progress(done, total)``) and the report holds its section."""
     import time
 
     if isinstance(poses, bool) or not isinstance(poses, int) or not 1 <= poses <= len(POSES):
         raise ValueError(f"poses must be an integer in [1, {len(POSES)}], got {poses!r}")
     conditions = defocus_conditions(setup, defocus_mm)
     optics = optics_conditions(setup)
-    gaze_conds = []
-    if gaze_dir is not None:
-        from .lens_gaze import CONFIG, gaze_conditions
-
-        gaze_config = gaze_config or CONFIG
-        gaze_conds = gaze_conditions(setup)
-    total = len(conditions) + len(optics) + len(gaze_conds)
+    total = len(conditions) + len(optics) + (gaze_steps if gaze is not None else 0)
     t0 = time.perf_counter()
     results = []
     for i, c in enumerate(conditions + optics):
@@ -296,14 +292,8 @@ def run_study(setup: Setup, *, spp: int = 16, seed: int = 0, defocus_mm=(0.0, 2.
     d, o = results[:len(conditions)], results[len(conditions):]
     glint_s = time.perf_counter() - t0
     section = None
-    if gaze_conds:
-        from .lens_gaze import run_gaze_study
-        from .lens_gaze_report import gaze_section
-
-        t = time.perf_counter()
+    if gaze is not None:
         done = len(results)
-        g = run_gaze_study(setup, gaze_dir, config=gaze_config, seed=seed, conditions=gaze_conds,
-                           progress=(lambda k, _: progress(done + k, total)) if progress else None)
-        section = gaze_section(g, gaze_config, time.perf_counter() - t, glints=o)
+        section = gaze(o, (lambda k, _: progress(done + k, total)) if progress else None)
     return report(setup, d, o, spp=spp, seed=seed, poses=poses, command=command,
                   gaze=section, glint_s=glint_s), d, o

@@ -50,11 +50,12 @@ log = logging.getLogger(__name__)
 TRACKERS = ("lens", "pinhole", "board")
 #: The gaze-level runs' default size: full resolution (the 643 px eye is too small at half
 #: size: neighbouring glints ~2.5 px apart), conductor cornea at 4 spp (exact glints at low spp,
-#: as the quick validation), a 3 x 3 calibration grid and 8 banded test frames at 16 pulses per
-#: frame (one fixation of the 24 x 15 grid, 8 x 16 bands). Measured on 2 shared cores
-#: (2026-12-04): a calibration frame ~1.5-2.5 s, a test frame ~3 s, tracking ~10 s a frame
-#: (the textured eye's clutter), the first calibration ~40 s with the JIT's warm-up.
-CONFIG = ValidationConfig(scale=1, spp=4, cornea="conductor", frames=8, calib_grid=(3, 3),
+#: as the quick validation), a 4 x 4 calibration grid and 24 banded test frames at 16 pulses
+#: per frame (two fixations of the 24 x 15 grid, 15 frames each, 24 x 11 visible bands).
+#: Measured on 2 cores shared with other jobs (load 9-15, 2026-12-04): the 7 conditions of
+#: :func:`gaze_conditions` in 20.4 min, most of it rendering; a rerun on the same work folder
+#: reuses the renders.
+CONFIG = ValidationConfig(scale=1, spp=4, cornea="conductor", frames=24, calib_grid=(4, 4),
                           pulses_per_frame=(16,))
 #: Board frames of the board calibration (c): 15-25 views make a calibration
 #: (``scet render --board``); board frames are cheap (no light transport, ~0.6 s at 4 spp).
@@ -221,3 +222,17 @@ def run_gaze_study(setup: Setup, out_dir, *, config: ValidationConfig = CONFIG, 
         if progress is not None:
             progress(i + 1, len(conditions))
     return results
+
+
+def gaze_runner(setup: Setup, out_dir, *, config: ValidationConfig = CONFIG, seed: int = 0):
+    """The ``gaze`` hook of :func:`scet_render.study.lens.run_study`: ``run(optics, progress)``
+    runs :func:`run_gaze_study` and returns the report's gaze section (with the glint-level
+    ``optics`` results beside the recommendation)."""
+    from .lens_gaze_report import gaze_section
+
+    def run(optics, progress=None) -> str:
+        t = time.perf_counter()
+        results = run_gaze_study(setup, out_dir, config=config, seed=seed, progress=progress)
+        return gaze_section(results, config, time.perf_counter() - t, glints=optics)
+
+    return run

@@ -8,7 +8,6 @@ from __future__ import annotations
 import math
 
 from ..validate import ValidationConfig
-from .lens import LensResult
 
 #: A condition "keeps" the in-focus result when its valid share is at least this share of it.
 KEEP_VALID = 0.9
@@ -138,7 +137,7 @@ def _recommendation(lens: list, glints: list) -> str:
         text += (f"; a focus error's blur scales as 1 / N: the "
                  f"{r.condition.focus_offset_m * 1e3:+g} mm condition's {r.blur_px:.2f} px at "
                  f"F{n0:g} is {r.blur_px * n0 / 5.6:.2f} px at F5.6")
-    g_ok = [g for g in glints if isinstance(g, LensResult) and g.condition.focal_px == 643.0
+    g_ok = [g for g in glints if g.condition.focal_px == 643.0
             and g.condition.working_distance_m is None and g.condition.focus_offset_m == 0.0]
     same = [g for g in g_ok if g.condition.f_number == n]
     if same:

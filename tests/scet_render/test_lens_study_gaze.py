@@ -104,7 +104,7 @@ def test_gaze_table_and_reading(designed):
     # The stock lens's best aperture in focus is F5.6 (60 % against 50 %).
     assert "at F5.6" in text.split("Recommendation")[1]
     section = gaze_section(results, CONFIG, 600.0)
-    assert "10.0 min" in section and "3x3 calibration grid" in section
+    assert "10.0 min" in section and "4x4 calibration grid" in section
 
 
 def test_reading_survives_a_condition_without_valid_samples(designed):
