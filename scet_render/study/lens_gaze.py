@@ -53,7 +53,7 @@ TRACKERS = ("lens", "pinhole", "board")
 #: as the quick validation), a 4 x 4 calibration grid and 24 banded test frames at 16 pulses
 #: per frame (two fixations of the 24 x 15 grid, 15 frames each, 24 x 11 visible bands).
 #: Measured on 2 cores shared with other jobs (load 9-15, 2026-12-04): the 7 conditions of
-#: :func:`gaze_conditions` in 20.4 min, most of it rendering; a rerun on the same work folder
+#: :func:`gaze_conditions` in 16-20 min, most of it rendering; a rerun on the same work folder
 #: reuses the renders.
 CONFIG = ValidationConfig(scale=1, spp=4, cornea="conductor", frames=24, calib_grid=(4, 4),
                           pulses_per_frame=(16,))
