@@ -153,3 +153,13 @@ def test_recommendation_takes_the_depth_of_field_when_apertures_are_alike(design
     rec = reading([_result(designed, f29, "lens", 0.50, 0.040),
                    _result(designed, f56, "lens", 0.40, 0.041)]).split("Recommendation")[1]
     assert "at F2.9" in rec and "alike" not in rec
+
+
+@pytest.mark.parametrize("args", [["--gaze-grid", "1"], ["--gaze-frames", "0"],
+                                  ["--gaze-spp", "x"]])
+def test_cli_refuses_bad_gaze_sizes_in_one_line(args, capsys):
+    from scet_render.cli import main
+
+    assert main(["study", "lens", "prototype_ov5647_designed", "--gaze", *args]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert args[0] in err[-1] and "Traceback" not in "\n".join(err)
