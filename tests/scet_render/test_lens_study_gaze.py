@@ -114,7 +114,7 @@ def test_reading_survives_a_condition_without_valid_samples(designed):
     assert "-" in gaze_table([r])
 
 
-@pytest.mark.slow  # two full-size 2-spp runs tracked twice: ~2-4 min on 2 shared cores
+@pytest.mark.slow  # full-size 2-spp renders tracked twice: 16 s idle, 141 s on busy shared cores
 def test_a_pinhole_tracker_of_a_distorted_lens_is_worse_than_the_right_model(tmp_path):
     """Physical expectation: the distortion vanishes at the principal point, so the eye is put
     15 deg off the camera's axis (the camera turned about its y axis) behind a strongly
