@@ -189,10 +189,23 @@ def cmd_study_lens(args) -> int:
     from .study.lens import run_study
 
     setup = load_scene(args.scene)
-    bar, update = progress_bar(10, "condition", f"study lens {setup.name}")
+    gaze, steps, command = None, 0, f"scet study lens {setup.name} --spp {args.spp} --seed " \
+        f"{args.seed} --poses {args.poses}"
+    if args.gaze:
+        from dataclasses import replace
+
+        from .study.lens_gaze import CONFIG, gaze_conditions, gaze_runner
+
+        config = replace(CONFIG, spp=args.gaze_spp, frames=args.gaze_frames,
+                         calib_grid=(args.gaze_grid, args.gaze_grid))
+        gaze, steps = gaze_runner(setup, args.out, config=config, seed=args.seed), \
+            len(gaze_conditions(setup))
+        command += (f" --gaze --gaze-spp {args.gaze_spp} --gaze-frames {args.gaze_frames} "
+                    f"--gaze-grid {args.gaze_grid}")
+    bar, update = progress_bar(10 + steps, "condition", f"study lens {setup.name}")
     try:
         text, _, _ = run_study(setup, spp=args.spp, seed=args.seed, poses=args.poses,
-                               progress=update)
+                               progress=update, gaze=gaze, gaze_steps=steps, command=command)
     finally:
         bar.close()
     path = atomic_write(Path(args.report_dir) / "lens.md", text)
@@ -296,6 +309,18 @@ def add_parsers(sub) -> None:
     lens.add_argument("--spp", type=integer(1, 4096), default=16)
     lens.add_argument("--seed", type=integer(0, MAX_SEED), default=0)
     lens.add_argument("--poses", type=integer(1, 3), default=3, help="fixations per condition (1-3)")
+    lens.add_argument("--gaze", action="store_true",
+                      help="also calibrate and track per lens condition (valid share, gaze "
+                           "error; tracked with the lens model, as a pinhole, from a board "
+                           "calibration): minutes per condition")
+    lens.add_argument("--gaze-spp", type=integer(1, 4096), default=4,
+                      help="spp of the gaze renders (conductor cornea; default 4)")
+    lens.add_argument("--gaze-frames", type=integer(1, 10_000), default=24,
+                      help="banded test frames per gaze condition (15 per fixation; default 24)")
+    lens.add_argument("--gaze-grid", type=integer(2, 24), default=4,
+                      help="calibration grid N x N of the gaze conditions (default 4)")
+    lens.add_argument("--out", type=Path, default=Path("out/lens_study"),
+                      help="work folder of the gaze renders (reused by a rerun)")
     lens.add_argument("--report-dir", type=Path, default=Path("reports"))
     lens.set_defaults(func=cmd_study_lens)
     w = studies.add_parser("wire", help="the wire-wound mirror's glints against the point-source "

@@ -208,7 +208,8 @@ def validate_setup(setup: Setup, cfg: ValidationConfig, out_dir, *, seed: int = 
                    progress: Callable[[str, int, int], None] | None = None,
                    eyelid_openness: float | None = 1.0,
                    scene_text: str | None = None, cornea_model: str = "sphere",
-                   workers: int | None = None, address: str | None = None) -> ValidationRun:
+                   workers: int | None = None, address: str | None = None,
+                   tracker_camera=None, tracker_name: str = "tracker") -> ValidationRun:
     """Steps 1-3 of the module docstring on a setup already at the render size (no report):
     what :func:`run_validation` runs on its scene, and ``scet study aspheric`` on derived eyes.
 
@@ -235,6 +236,13 @@ def validate_setup(setup: Setup, cfg: ValidationConfig, out_dir, *, seed: int = 
         (:mod:`scet_render.cluster`): the same bytes as the serial run, so the same report.
     address : str, optional
         Render on an existing Ray cluster instead (its workers must share ``out_dir``).
+    tracker_camera : Camera, optional
+        The camera the tracker calibrates and tracks with, in place of ``setup``'s (which the
+        frames are rendered through): a pinhole or a board calibration of the rendered lens
+        (``scet study lens --gaze``). Only the renders are shared with a run without it.
+    tracker_name : str
+        With ``tracker_camera``: the calibration and the samples are written as
+        ``calibration_<name>.json`` and ``samples_<method>_p<ppf>_<name>.csv``.
 
     Returns
     -------
@@ -269,8 +277,12 @@ def validate_setup(setup: Setup, cfg: ValidationConfig, out_dir, *, seed: int = 
         settings[ppf] = (sset, test_dir)
     timings["render"] = time.perf_counter() - t
 
+    if tracker_camera is not None:  # what the tracker believes the camera is
+        setup = replace(setup, camera=tracker_camera)
+        settings = {p: (replace(s, camera=tracker_camera), d) for p, (s, d) in settings.items()}
     t = time.perf_counter()
     tag = "" if cornea_model == "sphere" else f"_{cornea_model}"
+    tag += "" if tracker_camera is None else f"_{tracker_name}"
     calibration = calibrate_from_folder(cal_dir, setup, cornea_model=cornea_model)
     save_calibration(calibration, out / f"calibration{tag}.json")
     timings["calibrate"] = time.perf_counter() - t
