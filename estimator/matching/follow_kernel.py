@@ -55,7 +55,7 @@ def orbit_args(matcher) -> tuple:
             np.ascontiguousarray(matcher.group, dtype=np.int64))
 
 
-def _pose(angles, rc, offset, center, axis):
+def orbit_pose(angles, rc, offset, center, axis):
     """Cornea centre and optical axis (3,) of Fick ``angles`` on the orbit, into the outputs
     (:meth:`estimator.matching.GlintMatcher._orbit_pose`)."""
     cp = math.cos(angles[1])
@@ -71,7 +71,7 @@ def _candidates(cam, angles, rc, offset, radius, lights, cap, lo, hi, b, pred, v
     """Predicted glints at ``angles``, their candidates (inside the band widened by ``b``)
     and those well inside it (narrowed by ``b``) (:meth:`BandFollower._candidates`)."""
     R, O, intr, size = cam
-    _pose(angles, rc, offset, center, axis)
+    orbit_pose(angles, rc, offset, center, axis)
     glints_kernel(R, O, intr, size, center, radius, lights, axis, cap, True, pred, vis,
                   with_jacobian, jac)
     for n in range(pred.shape[0]):
@@ -256,7 +256,7 @@ def follow_band(g, lo, hi, prior, weight, R, O, intr, size, rc, offset, radius, 
 
 if ENABLED:
     _jit = compiled.numba.njit(cache=True, nogil=True, error_model="numpy")
-    _pose = _jit(_pose)
+    orbit_pose = _jit(orbit_pose)
     _candidates = _jit(_candidates)
     _assign = _jit(_assign)
     _fit = _jit(_fit)

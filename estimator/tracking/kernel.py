@@ -185,6 +185,18 @@ if ENABLED:
     cheap_band = _jit(cheap_band)
 
 
+def mapping_args(context, polynomial: bool) -> tuple:
+    """The gaze map as the compiled band steps take it: (offset (3,), scale (3,), exponents
+    (terms, features) int64, coefficients (terms, 2)); placeholders for geometric gaze."""
+    if not polynomial:
+        return (np.zeros(3), np.ones(3), np.zeros((0, 3), dtype=np.int64), np.zeros((0, 2)))
+    gm = context.gaze_map
+    return (np.ascontiguousarray(gm.offset_m, dtype=np.float64),
+            np.ascontiguousarray(gm.scale_m, dtype=np.float64),
+            np.array(MAPPING_TERMS[gm.kind], dtype=np.int64).reshape(-1, gm.n_features),
+            np.ascontiguousarray(gm.coefficients, dtype=np.float64))
+
+
 class CheapBand:
     """:func:`cheap_band` with a stream's fixed arguments (its
     :class:`~estimator.tracking.BandContext`'s follower, fit problems, mapping and screen).
@@ -217,16 +229,7 @@ class CheapBand:
                       dtype=np.int64)
         fixed = (*follow_kernel.orbit_args(matcher), matcher.shift_table(), fp, ip, polynomial)
         center = context.problems.center
-        if polynomial:
-            gm = context.gaze_map
-            mapping = (np.ascontiguousarray(gm.offset_m, dtype=np.float64),
-                       np.ascontiguousarray(gm.scale_m, dtype=np.float64),
-                       np.array(MAPPING_TERMS[gm.kind], dtype=np.int64).reshape(
-                           -1, gm.n_features),
-                       np.ascontiguousarray(gm.coefficients, dtype=np.float64))
-        else:
-            mapping = (np.zeros(3), np.ones(3), np.zeros((0, 3), dtype=np.int64),
-                       np.zeros((0, 2)))
+        mapping = mapping_args(context, polynomial)
         tail = (np.ascontiguousarray(center.lights_world_m, dtype=np.float64),
                 float(center.cornea_radius_m), *mapping,
                 np.asarray(context.calibration.eye_center_m, dtype=np.float64).reshape(3),

@@ -36,13 +36,12 @@ import numpy as np
 import estimator.matching.follow_kernel as follow_kernel
 import estimator.matching.refine_kernel as refine_kernel
 
-from ..calibration import MAPPING_TERMS
 from ..cornea.small import XTOL_M, lm_kernel
 from ..gaze import ANGLE_BOUND_RAD
 from ..geometry import compiled
 from ..geometry.compiled import glints_kernel
 from ..matching.kernels import confidences, nearest_assign
-from .kernel import axis_point, mapped_point
+from .kernel import axis_point, mapped_point, mapping_args
 
 __all__ = ["PriorBand", "prior_band", "ENABLED", "ESTIMATED", "FALLBACK", "NO_HYPOTHESIS",
            "FIT_FAILED", "TOO_FEW_GLINTS", "AMBIGUOUS"]
@@ -64,18 +63,6 @@ def _inverse_2x2(a, b, c, d, rcond, out):
         return False
     out[0, 0], out[0, 1], out[1, 0], out[1, 1] = d / det, -b / det, -c / det, a / det
     return True
-
-
-def orbit_pose(angles, rc, offset, center, axis):
-    """Cornea centre and optical axis (3,) of Fick ``angles`` on the orbit (rotation centre
-    ``rc``, cornea offset), the matcher's ``_orbit_pose`` in scalar arithmetic (the same
-    operations)."""
-    cp = math.cos(angles[1])
-    axis[0] = cp * math.sin(angles[0])
-    axis[1] = math.sin(angles[1])
-    axis[2] = -cp * math.cos(angles[0])
-    for i in range(3):
-        center[i] = rc[i] + offset * axis[i]
 
 
 def prior_band(g, lo, hi, mean, cov, R, O, intr, size, rc, offset, radius, lights, cap, ce,
@@ -119,7 +106,7 @@ def prior_band(g, lo, hi, mean, cov, R, O, intr, size, rc, offset, radius, light
     c0 = np.empty(3)
     axis = np.empty(3)
     jac = np.empty((n, 2, 3))
-    orbit_pose(mean, rc, offset, c0, axis)
+    follow_kernel.orbit_pose(mean, rc, offset, c0, axis)
     glints_kernel(R, O, intr, size, c0, radius, lights, axis, cap, True, pred, vis, True, jac)
     cp, sp = math.cos(mean[1]), math.sin(mean[1])
     cy, sy = math.cos(mean[0]), math.sin(mean[0])
@@ -148,7 +135,7 @@ def prior_band(g, lo, hi, mean, cov, R, O, intr, size, rc, offset, radius, light
     spread = math.sqrt(top) if any_vis else 0.0
     first_gate = math.hypot(gate_px, 3.0 * spread)
     # The first assignment at the prior, and its shifts along the arcs (match_near, _choose).
-    orbit_pose(mean, rc, offset, c0, axis)
+    follow_kernel.orbit_pose(mean, rc, offset, c0, axis)
     glints_kernel(R, O, intr, size, c0, radius, lights, axis, cap, True, pred, vis, False,
                   np.empty((0, 2, 3)))
     for c in range(n):
@@ -300,7 +287,6 @@ def prior_band(g, lo, hi, mean, cov, R, O, intr, size, rc, offset, radius, light
 if ENABLED:
     _jit = compiled.numba.njit(cache=True, nogil=True, error_model="numpy")
     _inverse_2x2 = _jit(_inverse_2x2)
-    orbit_pose = _jit(orbit_pose)
     prior_band = _jit(prior_band)
 
 
@@ -333,16 +319,7 @@ class PriorBand:
                  np.ascontiguousarray(context.problems.orbit.lights_world_m, dtype=np.float64),
                  float(context.prior.noise_px ** 2), float(max_residual_px),
                  float(ANGLE_BOUND_RAD))
-        if polynomial:
-            gm = context.gaze_map
-            mapping = (np.ascontiguousarray(gm.offset_m, dtype=np.float64),
-                       np.ascontiguousarray(gm.scale_m, dtype=np.float64),
-                       np.array(MAPPING_TERMS[gm.kind], dtype=np.int64).reshape(
-                           -1, gm.n_features),
-                       np.ascontiguousarray(gm.coefficients, dtype=np.float64))
-        else:
-            mapping = (np.zeros(3), np.ones(3), np.zeros((0, 3), dtype=np.int64),
-                       np.zeros((0, 2)))
+        mapping = mapping_args(context, polynomial)
         tail = (*mapping, np.asarray(context.calibration.eye_center_m,
                                      dtype=np.float64).reshape(3),
                 float(context.setup.screen.z_m))
