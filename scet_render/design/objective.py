@@ -140,13 +140,17 @@ def layout_glints(setup: Setup, lights_m, poses: DesignPoses, shells: Shells | N
     image, past lids and skin, and clear of every other usable glint by
     :data:`MIN_SEPARATION_PX`. Every light is a point source."""
     lights = np.asarray(lights_m, dtype=np.float64).reshape(-1, 3)
+    g, vis, pts = _point_glints(setup, lights, poses)
+    return usable_glints(setup, g, vis, pts, lights, shells)
+
+
+def _point_glints(setup: Setup, lights, poses: DesignPoses):
+    """(glints (P, n, 2), visible (P, n), reflection points (P, n, 3)) of point lights."""
     eye = setup.eye
     center = eye.cornea_center(poses.yaw_rad, poses.pitch_rad)
     axis = gaze_direction(poses.yaw_rad, poses.pitch_rad)
-    g, vis, pts = project_glints(setup.camera, center, eye.cornea_radius_m, lights,
-                                 cornea_axis=axis, cap_cos_min=eye.cap_cos_min,
-                                 return_points=True)
-    return usable_glints(setup, g, vis, pts, lights, shells)
+    return project_glints(setup.camera, center, eye.cornea_radius_m, lights,
+                          cornea_axis=axis, cap_cos_min=eye.cap_cos_min, return_points=True)
 
 
 def setup_layout_glints(setup: Setup, poses: DesignPoses, shells: Shells | None = None):
@@ -158,12 +162,7 @@ def setup_layout_glints(setup: Setup, poses: DesignPoses, shells: Shells | None 
     if not wires:
         return layout_glints(setup, lights, poses, shells)
     eye = setup.eye
-    center = eye.cornea_center(poses.yaw_rad, poses.pitch_rad)
-    axis = gaze_direction(poses.yaw_rad, poses.pitch_rad)
-    g, vis, pts = project_glints(setup.camera, center, eye.cornea_radius_m, lights,
-                                 cornea_axis=axis, cap_cos_min=eye.cap_cos_min,
-                                 return_points=True)
-    g, vis, pts = np.array(g), np.array(vis), np.array(pts)
+    g, vis, pts = (np.array(a) for a in _point_glints(setup, lights, poses))
     sources = np.array(np.broadcast_to(lights, pts.shape))
     for _, first, mirror in wires:
         w = eye_wire_glints(eye, setup.camera, mirror, poses.yaw_rad, poses.pitch_rad)
