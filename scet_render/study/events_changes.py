@@ -155,9 +155,12 @@ saccades on the study's goal stream, and its onsets erred more beside NaN bands.
 came from (the simulator's switches are the next section): {nan_text(changes[2] if changes else None)}
 Five changes, each added to the one before and measured on the same samples, on the study's
 trajectory and on {len(seeds)} further trajectories of the same setting (seeds
-{", ".join(str(k) for k in seeds)}). Those were first simulated after the first four changes
-were built, and nothing was tuned on them; the fifth fixes an error seen on one of them (an
-event run on across 1.3 s without valid bands, seed 1), so its held-out row is not blind:
+{", ".join(str(k) for k in seeds)}). The trajectories of those seeds were first simulated after
+the first four changes were built, and nothing was tuned on them; the fifth fixes an error
+seen on one of them (an event run on across 1.3 s without valid bands, seed 1), so that row is
+not blind. They were the simulator's earlier trajectories, which could leave the screen (the
+section on held-out trajectories); the rows below are today's on-screen trajectories of the
+same seeds, simulated after every change was made:
 
 1. crossings interpolated between the instants where the two fits' slopes belong (the mean
    instant of each fit's samples; beside a NaN band a fit is one-sided);
