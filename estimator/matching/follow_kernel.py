@@ -96,10 +96,9 @@ def _assign(g, pred, cand, gate, assign, dist, max_nodes):
     return optimal_assign(g, pred, lights, gate * gate, assign, dist, max_nodes)
 
 
-def _fit(cam, g, lights, assign, x0, ce, rco, radius, xtol, pm, P, x, JtJ):
-    """:func:`estimator.cornea.fit_small` ("orbit") of the matched detections from ``x0``:
-    (ok, cost, matched count, iterations); x and JᵀJ into the outputs."""
-    R, O, intr, size = cam
+def matched_pairs(g, lights, assign):
+    """The matched detections (m, 2) and their lights (m, 3), in detection order, of an
+    assignment ``assign`` (k,) (light index, -1 unmatched) of detections ``g`` (k, 2)."""
     m = 0
     for d in range(assign.shape[0]):
         if assign[d] >= 0:
@@ -113,6 +112,15 @@ def _fit(cam, g, lights, assign, x0, ce, rco, radius, xtol, pm, P, x, JtJ):
             for c in range(3):
                 Lu[i, c] = lights[assign[d], c]
             i += 1
+    return gu, Lu
+
+
+def _fit(cam, g, lights, assign, x0, ce, rco, radius, xtol, pm, P, x, JtJ):
+    """:func:`estimator.cornea.fit_small` ("orbit") of the matched detections from ``x0``:
+    (ok, cost, matched count, iterations); x and JᵀJ into the outputs."""
+    R, O, intr, size = cam
+    gu, Lu = matched_pairs(g, lights, assign)
+    m = gu.shape[0]
     for a in range(2):
         for b in range(2):
             JtJ[a, b] = 0.0
@@ -257,6 +265,7 @@ def follow_band(g, lo, hi, prior, weight, R, O, intr, size, rc, offset, radius, 
 if ENABLED:
     _jit = compiled.numba.njit(cache=True, nogil=True, error_model="numpy")
     orbit_pose = _jit(orbit_pose)
+    matched_pairs = _jit(matched_pairs)
     _candidates = _jit(_candidates)
     _assign = _jit(_assign)
     _fit = _jit(_fit)

@@ -144,19 +144,8 @@ def cheap_band(g, lo, hi, prior, weight, retry, R, O, intr, size, rc, offset, ra
         rms = math.sqrt(max(cost, 0.0) / m)
         axis_point(x, eye_center, screen_z, xy)
     else:
-        k = 0
-        for d in range(assign.shape[0]):
-            if assign[d] >= 0:
-                k += 1
-        gu = np.empty((k, 2))
-        Lu = np.empty((k, 3))
-        i = 0
-        for d in range(assign.shape[0]):
-            if assign[d] >= 0:
-                gu[i, 0], gu[i, 1] = g[d, 0], g[d, 1]
-                for c in range(3):
-                    Lu[i, c] = center_lights[assign[d], c]
-                i += 1
+        gu, Lu = follow_kernel.matched_pairs(g, center_lights, assign)
+        k = gu.shape[0]
         x0 = np.empty(3)
         for c in range(3):
             x0[c] = center[c] if math.isnan(start[0]) else start[c]

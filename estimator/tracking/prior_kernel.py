@@ -241,15 +241,7 @@ def prior_band(g, lo, hi, mean, cov, R, O, intr, size, rc, offset, radius, light
             if not math.isfinite(inv[a, b]):
                 return FALLBACK, nan
             Pi[a, b] = noise2 * inv[a, b]
-    gu = np.empty((n_matched, 2))
-    Lu = np.empty((n_matched, 3))
-    i = 0
-    for d in range(k):
-        if assign[d] >= 0:
-            gu[i, 0], gu[i, 1] = g[d, 0], g[d, 1]
-            for c in range(3):
-                Lu[i, c] = orbit_lights[assign[d], c]
-            i += 1
+    gu, Lu = follow_kernel.matched_pairs(g, orbit_lights, assign)
     JtJ = np.zeros((2, 2))
     cost, _, converged = lm_kernel(R, O, intr, size, 1, mean, ce, rco, fit_radius, Lu, gu, 50,
                                    XTOL_M / rco, mean, Pi, angles, JtJ)
