@@ -35,7 +35,8 @@ from estimator.geometry.wire import eye_wire_glints, setup_wire_mirrors, wire_gl
 from estimator.scene import load_scene
 from estimator.setup import Setup
 
-from .wire_track import accuracy_table, load_rendered, rendered_accuracy, table_lines
+from .wire_track import (accuracy_table, load_rendered, method_accuracy, rendered_accuracy,
+                         table_lines)
 
 DEFAULT_SCENE = "prototype_ov5647_wire"
 
@@ -63,8 +64,6 @@ def tracker_accuracy(setup: Setup, source: str, grid=(24, 15)) -> dict:
     (``"point"``: the scene's point lights; ``"wire"``: the two-bounce glints). Returns per
     method the errors (deg, NaN where no estimate)."""
     from estimator.folders import calibrate_from_glints
-    from estimator.gaze import calibrated_problems, geometric_gaze, polynomial_gaze
-    from estimator.metrics import angular_error_deg
 
     from ..simulate import parse_targets
 
@@ -80,19 +79,8 @@ def tracker_accuracy(setup: Setup, source: str, grid=(24, 15)) -> dict:
     cal = calibrate_from_glints(setup, glints(cal_targets), cal_targets)
     targets = parse_targets(f"grid:{grid[0]}x{grid[1]}", setup)
     g = glints(targets)
-    problems = calibrated_problems(setup, cal)
-    mapping = sorted(k for k in cal.mappings if k.startswith("eq1"))[-1]
-    out = {"calibration_rms_px": float(cal.quality["rms_px"])}
-    for method in ("polynomial", "geometric"):
-        t0 = time.perf_counter()
-        if method == "polynomial":
-            est = polynomial_gaze(setup, cal, g, mapping=mapping, problems=problems)
-        else:
-            est = geometric_gaze(setup, cal, g, problems=problems)
-        dt = time.perf_counter() - t0
-        err = angular_error_deg(est.point_m, targets, setup.eye.rotation_center_m)
-        out[method] = {"errors_deg": err, "samples_per_s": len(targets) / dt}
-    return out
+    return {"calibration_rms_px": float(cal.quality["rms_px"]),
+            **method_accuracy(setup, cal, g, targets, ("polynomial", "geometric"))}
 
 
 def led_placement_search(setup: Setup, *, grid=(8, 5), radii_mm=(4, 9.2, 14.4, 19.6, 24.8, 30),

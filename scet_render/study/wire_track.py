@@ -57,27 +57,39 @@ def _calibrate(setup, model, glints, targets):
     return cal.with_mappings(**maps)
 
 
+def method_accuracy(setup, cal, glints, targets, methods=("geometric", "polynomial")) -> dict:
+    """{method: {"errors_deg" (m,), "samples_per_s"}}: gaze from ``glints`` (m, n, 2) with
+    calibration ``cal`` against the true ``targets`` (m, 3), the polynomial method with the
+    calibration's highest Eq. (1) mapping; samples/s of the estimation alone."""
+    from estimator.gaze import calibrated_problems, geometric_gaze, polynomial_gaze
+    from estimator.metrics import angular_error_deg
+
+    problems = calibrated_problems(setup, cal)
+    mapping = sorted(k for k in cal.mappings if k.startswith("eq1"))[-1]
+    out = {}
+    for method in methods:
+        t0 = time.perf_counter()
+        if method == "polynomial":
+            est = polynomial_gaze(setup, cal, glints, mapping=mapping, problems=problems)
+        else:
+            est = geometric_gaze(setup, cal, glints, problems=problems)
+        dt = time.perf_counter() - t0
+        err = angular_error_deg(est.point_m, targets, setup.eye.rotation_center_m)
+        out[method] = {"errors_deg": err, "samples_per_s": len(targets) / dt}
+    return out
+
+
 def accuracy_table(setup, cal_glints, cal_targets, glints, targets) -> dict:
     """{model: {"calibration": Calibration, "rms_px", method: {"errors_deg" (m,), "samples_per_s"}}}
     for the :data:`MODELS` (module docstring); glints (m, n, 2) NaN where not seen."""
-    from estimator.gaze import calibrated_problems, geometric_gaze, polynomial_gaze
-    from estimator.metrics import angular_error_deg
+    from estimator.gaze import calibrated_problems, geometric_gaze
 
     out = {}
     for model, _ in MODELS:
         cal = _calibrate(setup, model, cal_glints, cal_targets)
         problems = calibrated_problems(setup, cal)
-        mapping = sorted(k for k in cal.mappings if k.startswith("eq1"))[-1]
-        row = {"calibration": cal, "rms_px": float(cal.quality["rms_px"])}
-        for method in ("geometric", "polynomial"):
-            t0 = time.perf_counter()
-            if method == "polynomial":
-                est = polynomial_gaze(setup, cal, glints, mapping=mapping, problems=problems)
-            else:
-                est = geometric_gaze(setup, cal, glints, problems=problems)
-            dt = time.perf_counter() - t0
-            err = angular_error_deg(est.point_m, targets, setup.eye.rotation_center_m)
-            row[method] = {"errors_deg": err, "samples_per_s": len(targets) / dt}
+        row = {"calibration": cal, "rms_px": float(cal.quality["rms_px"]),
+               **method_accuracy(setup, cal, glints, targets)}
         few = band_glints(glints)
         t0 = time.perf_counter()
         geometric_gaze(setup, cal, few, problems=problems)
