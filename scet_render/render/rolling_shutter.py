@@ -41,7 +41,7 @@ from ..motion.pupil import pupil_diameters
 from .backend import activate, is_jit_variant
 from .layout import DEFAULT_AMBIENT_RADIANCE, SceneOptions, pupil_radius
 from .lens import LensRays, band_rays
-from .mnee_kernels import MneeKernels
+from .mnee_kernels import MneeKernels, mnee_samples
 from .scene import EyeScene, sensor_dict
 
 #: Trajectory samples per strobe period used to measure the eye's angular speed in a frame.
@@ -339,8 +339,9 @@ class BandedRenderer:
                                         dr.zeros(mi.UInt32, n_rows * W * spp))
             img = np.asarray(out, dtype=np.float32).T.reshape(n_rows, W, 3)
             if es.mnee_enabled and strobe:
-                # Its own sample stream: the seed's complement (seeds are < 2**32).
-                img[..., 0] += self._mnee.rows(es, row_start, n_rows, spp,
+                # Its own sample stream (the seed's complement: seeds are < 2**32) and its
+                # own sample count (mnee_samples).
+                img[..., 0] += self._mnee.rows(es, row_start, n_rows, mnee_samples(spp),
                                                (~seed) & 0xFFFFFFFF)
             return img
         key = (row_start, row_stop)
