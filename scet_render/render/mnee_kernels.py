@@ -102,7 +102,9 @@ class MneeKernels:
                 sampler, ray, weight = self.band_rays(mi, sensor, row0, seed, lanes, spp, W, H)
                 out = mnee_front(mi, ray.o, ray.d, state["pose"], state["lights"], eta, scene)
                 out["w_cam"] = out["w_cam"] * weight[0]
-                out["u_light"], out["u_point"] = sampler.next_1d(), sampler.next_2d()
+                out["u_light"] = stratified_light_choice(
+                    mi, dr.arange(mi.UInt32, dr.width(lanes)), sampler.next_1d(), spp)
+                out["u_point"] = sampler.next_2d()
                 dr.eval(out)
                 return out
 
@@ -141,7 +143,6 @@ class MneeKernels:
             idx, lanes = compact_lanes(front)
             if dr.width(idx) == 0:
                 return np.zeros((n_rows, W), dtype=np.float32)
-            lanes["u_light"] = stratified_light_choice(mi, idx, lanes["u_light"], spp)
             value = self.back_kernel()(es.scene, lanes, es.mnee_state)
             lanes = dr.zeros(mi.Float, n_rows * W * spp)
             dr.scatter(lanes, value, idx)
