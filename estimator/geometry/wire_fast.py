@@ -25,7 +25,10 @@ module gives the fits that dependence:
   residual). Leaving dW/dc out altogether (a fixed point over frozen sources) converges
   linearly at that 5-9 % a round.
 
-Other light groups of the rig stay points. numpy only (the Raspberry Pi's budget).
+Other light groups of the rig stay points. numpy, with an optional Numba kernel for the
+alternation and the glints' rows (:mod:`estimator.geometry.wire_kernel`, the default where Numba
+is: a band's few glints cost numpy's per-call overhead, not arithmetic; ``compiled=False``
+forces numpy, which gives the same answers to the sources' tolerance).
 """
 
 from __future__ import annotations
