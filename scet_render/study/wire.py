@@ -258,7 +258,11 @@ def ideal_lines(rr: dict) -> list[str]:
             f"nothing rendered) errs {np.nanmedian(lab['geometric']['errors_deg']):.3f} deg median, "
             f"{np.nanmax(lab['geometric']['errors_deg']):.3f} max (geometric; calibration RMS "
             f"{lab['rms_px']:.3f} px): most of (c) - ideal is the LED's size, which the option "
-            "models as a point, not the renders' noise."]
+            "models as a point, not the renders' noise. The same on noise-free disk glints of "
+            "smaller LEDs (`wire_track.led_size_accuracy`, the same poses): "
+            + "; ".join(f"{1e3 * d:g} mm {v['median_deg']:.3f} deg median, {v['max_deg']:.3f} max "
+                        f"(RMS {v['rms_px']:.2f} px)" for d, v in ide["led_sizes"].items())
+            + "."]
     out += ["", f"Intervals: paired bootstrap over the {g['poses']} test poses ({BOOTSTRAP_RESAMPLES} "
             "resamples, percentile, seeded). The issue's target, (c) within 0.1 deg of the ideal "
             "(geometric, median): " + (

@@ -40,6 +40,8 @@ MODELS = (("nominal", "(a) point sources, nominal pose"),
 BAND_GLINTS = 4
 #: Pose bounds that hold the lighting at its nominal pose in (a) (rad, m): TRF needs lo < hi.
 HELD = 1e-12
+#: LED diameters (m) of :func:`led_size_accuracy`: the renders' 2 mm, and down to the scene's 0.5 mm.
+LED_SIZES_M = (2e-3, 1e-3, 0.5e-3)
 #: Repeats and one-call bands of :func:`band_cost`: 5 x 40 bands of (c) take ~2-5 s here.
 COST_REPEATS = 5
 COST_BANDS = 40
@@ -229,13 +231,15 @@ def paired_difference(errors_deg, ideal_deg, *, resamples: int = BOOTSTRAP_RESAM
     return out
 
 
-def rendered_accuracy(setup, rendered: dict, ideal: dict | None = None) -> dict:
+def rendered_accuracy(setup, rendered: dict, ideal: dict | None = None, *,
+                      led_sizes_m=None) -> dict:
     """:func:`accuracy_table` on rendered centroids, plus their error against the labels (the
     solver's glints averaged over the LED's disk) and those labels' offset from the LED
     centre's glints (the point the option models). With ``ideal`` (the same poses rendered
     with point-like sources, ``bench_wire_track.py --ideal``): its row, calibrated and tracked
     the default way on :func:`ideal_setup`, its centroids' error against their labels, and
-    the (c) - ideal differences (:func:`paired_difference`) per method."""
+    the (c) - ideal differences (:func:`paired_difference`) per method, and
+    :func:`led_size_accuracy` over ``led_sizes_m`` (default :data:`LED_SIZES_M`)."""
     table = accuracy_table(setup, rendered["calibration_centroids_px"], rendered["calibration_targets_m"],
                            rendered["test_centroids_px"], rendered["test_targets_m"])
     d = _centroid_errors(rendered)
@@ -249,7 +253,8 @@ def rendered_accuracy(setup, rendered: dict, ideal: dict | None = None) -> dict:
     return {"table": table, "centroid_error_px": d, "disk_shift_px": shift[np.isfinite(shift)], "spp": int(rendered["spp"]),
             "led_mm": 1e3 * float(rendered["led_m"]), "frames": (len(rendered["calibration_targets_m"]),
                                                                  len(rendered["test_targets_m"])),
-            "seconds": _seconds(rendered), "ideal": None if ideal is None else ideal_accuracy(setup, rendered, ideal, table)}
+            "seconds": _seconds(rendered), "ideal": None if ideal is None else ideal_accuracy(setup, rendered, ideal, table,
+                                                               led_sizes_m=led_sizes_m)}
 
 
 def _centroid_errors(rendered):
@@ -262,7 +267,7 @@ def _seconds(rendered):
     return float(np.sum(rendered["calibration_seconds"]) + np.sum(rendered["test_seconds"]))
 
 
-def ideal_accuracy(setup, rendered: dict, ideal: dict, table: dict) -> dict:
+def ideal_accuracy(setup, rendered: dict, ideal: dict, table: dict, *, led_sizes_m=None) -> dict:
     """The ideal's row (:func:`rendered_accuracy`); ValueError naming the key where ``ideal``
     was not rendered on ``rendered``'s poses and spp."""
     for k in ("calibration_targets_m", "test_targets_m", "spp"):
@@ -278,7 +283,40 @@ def ideal_accuracy(setup, rendered: dict, ideal: dict, table: dict) -> dict:
     on_labels = accuracy_table(setup, rendered["calibration_labels_px"], rendered["calibration_targets_m"],
                                rendered["test_labels_px"], rendered["test_targets_m"], models=("option",))["option"]
     return {"row": row, "centroid_error_px": _centroid_errors(ideal), "seconds": _seconds(ideal),
-            "option_minus_ideal": diff, "option_on_labels": on_labels}
+            "option_minus_ideal": diff, "option_on_labels": on_labels,
+            "led_sizes": led_size_accuracy(setup, rendered, LED_SIZES_M if led_sizes_m is None else led_sizes_m)}
+
+
+def led_size_accuracy(setup, rendered: dict, sizes_m=LED_SIZES_M, *, rings: int = 8) -> dict:
+    """(c) on noise-free disk glints (:func:`estimator.geometry.wire.led_disk_glints`) of LEDs
+    of each diameter in ``sizes_m``, on ``rendered``'s poses: the option's own model error
+    from the LED's size (it models a point); ``rings`` of the disk's sample points (8: the
+    renders' labels). {size_m: {"rms_px", "median_deg", "max_deg"}}."""
+    from dataclasses import replace
+
+    from estimator.geometry.wire import led_disk_glints, setup_wire_mirrors
+    from estimator.setup import LightGroup
+
+    out = {}
+    for size in sizes_m:
+        groups = tuple(LightGroup(g.name, g.kind, g.points_local_m, g.pose, g.source_radius_m,
+                                  replace(g.emitter, led_diameter_m=float(size)))
+                       if g.emitter is not None else g for g in setup.lights.groups)
+        s = replace(setup, lights=replace(setup.lights, groups=groups))
+        ((_, first, mirror),) = setup_wire_mirrors(s)
+        glints = {}
+        for k in ("calibration", "test"):
+            t = rendered[f"{k}_targets_m"]
+            g = np.full((len(t), s.lights.count, 2), np.nan)
+            g[:, first:first + mirror.turns] = led_disk_glints(s.eye, s.camera, mirror, *s.eye.angles_toward(t),
+                                                           rings=rings)[0]
+            glints[k] = g
+        row = accuracy_table(s, glints["calibration"], rendered["calibration_targets_m"], glints["test"],
+                             rendered["test_targets_m"], models=("option",))["option"]
+        e = row["geometric"]["errors_deg"]
+        out[float(size)] = {"rms_px": row["rms_px"], "median_deg": float(np.nanmedian(e)),
+                            "max_deg": float(np.nanmax(e))}
+    return out
 
 
 def _f(x, fmt="{:.3f}"):
@@ -307,6 +345,6 @@ def table_lines(table: dict, ideal: dict | None = None,
 
 
 __all__ = ["accuracy_table", "band_glints", "BAND_GLINTS", "rendered_accuracy", "ideal_accuracy", "ideal_setup",
-           "paired_difference", "band_cost", "IDEAL_SOURCE_M", "BOOTSTRAP_RESAMPLES", "load_rendered", "table_lines", "MODELS",
+           "paired_difference", "band_cost", "led_size_accuracy", "LED_SIZES_M", "IDEAL_SOURCE_M", "BOOTSTRAP_RESAMPLES", "load_rendered", "table_lines", "MODELS",
            "RENDERED_FORMAT", "RENDERED_VERSION"]
 
