@@ -20,6 +20,10 @@ against.
 Usage::
 
     python benchmarks/bench_wire_track.py [--spp 256] [--test 8] [--ideal] [--out PATH]
+    python benchmarks/bench_wire_track.py --spp 512 [--ideal] --more-test 16   # append poses
+
+``--more-test K`` appends K test poses to an existing file, drawn from a seed set by the poses
+it already holds, so that the wire and ideal files stay paired pose by pose.
 """
 
 from __future__ import annotations
@@ -104,6 +108,24 @@ def render_frames(setup, targets, *, spp: int, seed: int = 2, labels=None, log=p
     return cents, labels, secs
 
 
+def append_test(setup, labels, path, count: int, spp: int) -> int:
+    """Render ``count`` more test poses into the rendered-glints file ``path`` (same spp)."""
+    with np.load(path, allow_pickle=False) as z:
+        out = {k: z[k] for k in z.files}
+    if int(out["spp"]) != spp:
+        raise SystemExit(f"{path}: spp: the file holds {int(out['spp'])}, --spp is {spp}")
+    have = len(out["test_targets_m"])
+    rng = np.random.default_rng(35 + have)
+    t = np.column_stack([rng.uniform(*setup.screen.x_range_m, count),
+                         rng.uniform(*setup.screen.y_range_m, count), np.full(count, setup.screen.z_m)])
+    c, lab, sec = render_frames(setup, t, spp=spp, seed=1000 + have, labels=labels)
+    for k, v in (("targets_m", t), ("centroids_px", c), ("labels_px", lab), ("seconds", sec)):
+        out[f"test_{k}"] = np.concatenate([out[f"test_{k}"], v])
+    np.savez(path, **out)
+    print(f"wrote {path}: {have} + {count} test poses")
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="prototype_ov5647_wire")
@@ -111,12 +133,17 @@ def main(argv=None) -> int:
     ap.add_argument("--test", type=int, default=8, help="test poses (seeded, uniform over the screen)")
     ap.add_argument("--ideal", action="store_true",
                     help="the turns as 0.8 mm point-like spheres (the point-source ideal)")
+    ap.add_argument("--more-test", type=int, default=0,
+                    help="append this many test poses to the existing --out file (seeded by the "
+                         "poses it holds, so wire and ideal files get the same ones)")
     ap.add_argument("--out", help="default reports/wire_mirror_rendered[_ideal].npz")
     args = ap.parse_args(argv)
     out_path = args.out or f"reports/wire_mirror_rendered{'_ideal' if args.ideal else ''}.npz"
     wire = big_led(load_scene(args.scene), RENDER_LED_M)
     setup = ideal_setup(wire) if args.ideal else wire
     labels = point_labels(setup) if args.ideal else wire_labels(setup)
+    if args.more_test:
+        return append_test(setup, labels, out_path, args.more_test, args.spp)
     cal_t = parse_targets("calib:5x5", setup)
     rng = np.random.default_rng(35)
     test_t = np.column_stack([rng.uniform(*setup.screen.x_range_m, args.test),

@@ -242,7 +242,8 @@ def ideal_lines(rr: dict) -> list[str]:
            f"{np.percentile(e, 95):.3f} px 95th percentile from those labels ({e.size} glints; "
            f"{ide['seconds']:.0f} s of rendering).",
            "",
-           "| (c) - ideal | median of the errors, deg | 95 % interval | mean, deg | 95 % interval | per pose, deg min..max |",
+           "| (c) - ideal | median of the errors, deg | 95 % interval | mean, deg | 95 % interval "
+           "| per pose, deg min..max |",
            "|---|---:|---:|---:|---:|---:|"]
     for m in ("geometric", "polynomial"):
         d = ide["option_minus_ideal"][m]
@@ -266,7 +267,8 @@ def ideal_lines(rr: dict) -> list[str]:
     out += ["", f"Intervals: paired bootstrap over the {g['poses']} test poses ({BOOTSTRAP_RESAMPLES} "
             "resamples, percentile, seeded). The issue's target, (c) within 0.1 deg of the ideal "
             "(geometric, median): " + (
-                f"met, the interval's upper end {_f(g['median_ci'][1], '{:+.3f}')} deg." if g["median_ci"][1] < 0.1 else
+                f"met, the interval's upper end {_f(g['median_ci'][1], '{:+.3f}')} deg."
+                if g["median_ci"][1] < 0.1 else
                 f"met by the estimate ({_f(g['median'], '{:+.3f}')} deg), but the interval's upper end "
                 f"({_f(g['median_ci'][1], '{:+.3f}')} deg) passes 0.1: {g['poses']} poses do not show it at "
                 f"{100 * g['level']:.0f} %." if g["median"] < 0.1 else

@@ -253,8 +253,8 @@ def rendered_accuracy(setup, rendered: dict, ideal: dict | None = None, *,
     return {"table": table, "centroid_error_px": d, "disk_shift_px": shift[np.isfinite(shift)], "spp": int(rendered["spp"]),
             "led_mm": 1e3 * float(rendered["led_m"]), "frames": (len(rendered["calibration_targets_m"]),
                                                                  len(rendered["test_targets_m"])),
-            "seconds": _seconds(rendered), "ideal": None if ideal is None else ideal_accuracy(setup, rendered, ideal, table,
-                                                               led_sizes_m=led_sizes_m)}
+            "seconds": _seconds(rendered),
+            "ideal": None if ideal is None else ideal_accuracy(setup, rendered, ideal, table, led_sizes_m=led_sizes_m)}
 
 
 def _centroid_errors(rendered):
@@ -271,7 +271,8 @@ def ideal_accuracy(setup, rendered: dict, ideal: dict, table: dict, *, led_sizes
     """The ideal's row (:func:`rendered_accuracy`); ValueError naming the key where ``ideal``
     was not rendered on ``rendered``'s poses and spp."""
     for k in ("calibration_targets_m", "test_targets_m", "spp"):
-        if np.shape(ideal[k]) != np.shape(rendered[k]) or not np.allclose(ideal[k], rendered[k], rtol=0, atol=1e-12):
+        same = np.shape(ideal[k]) == np.shape(rendered[k]) and np.allclose(ideal[k], rendered[k], rtol=0, atol=1e-12)
+        if not same:
             raise ValueError(f"ideal rendered glints: {k}: not the wire renders' (render both with "
                              "benchmarks/bench_wire_track.py's defaults)")
     row = accuracy_table(ideal_setup(setup), ideal["calibration_centroids_px"], ideal["calibration_targets_m"],
@@ -281,7 +282,8 @@ def ideal_accuracy(setup, rendered: dict, ideal: dict, table: dict, *, led_sizes
     # (c) on the wire renders' labels (the solver's glints averaged over the LED's disk,
     # noise-free): what is left of the gap without any rendering noise, the LED's size.
     on_labels = accuracy_table(setup, rendered["calibration_labels_px"], rendered["calibration_targets_m"],
-                               rendered["test_labels_px"], rendered["test_targets_m"], models=("option",))["option"]
+                               rendered["test_labels_px"], rendered["test_targets_m"],
+                               models=("option",))["option"]
     return {"row": row, "centroid_error_px": _centroid_errors(ideal), "seconds": _seconds(ideal),
             "option_minus_ideal": diff, "option_on_labels": on_labels,
             "led_sizes": led_size_accuracy(setup, rendered, LED_SIZES_M if led_sizes_m is None else led_sizes_m)}
@@ -345,6 +347,7 @@ def table_lines(table: dict, ideal: dict | None = None,
 
 
 __all__ = ["accuracy_table", "band_glints", "BAND_GLINTS", "rendered_accuracy", "ideal_accuracy", "ideal_setup",
-           "paired_difference", "band_cost", "led_size_accuracy", "LED_SIZES_M", "IDEAL_SOURCE_M", "BOOTSTRAP_RESAMPLES", "load_rendered", "table_lines", "MODELS",
+           "paired_difference", "band_cost", "led_size_accuracy", "LED_SIZES_M", "IDEAL_SOURCE_M",
+           "BOOTSTRAP_RESAMPLES", "load_rendered", "table_lines", "MODELS",
            "RENDERED_FORMAT", "RENDERED_VERSION"]
 
