@@ -210,10 +210,12 @@ def cost_lines(r: dict) -> list[str]:
     out = [f"**Cost of the band step** (geometric, {BAND_GLINTS} glints a sample, the grid's samples; "
            f"{COST_REPEATS} repeats in this run, lowest..highest samples/s; the ratio is of the "
            "ranges' midpoints against (b); the machine's speed swings ~2x). Batched: every sample in "
-           f"one call; one band a call: {COST_BANDS} samples, one call each, as a live tracker meets "
-           "them. The option's highlight alternation ran "
+           f"one call; one band a call: {COST_BANDS} samples, one call each (a band at a time, "
+           "where per-call overhead dominates). The option's highlight alternation ran "
            + ("compiled (Numba, `estimator.geometry.wire_kernel`)." if r.get("kernel") else
-              "in numpy (no Numba)."),
+              "in numpy (no Numba).")
+           + " `benchmarks/bench_wire_option.py` prints this table with the kernel and again in numpy "
+             "(`NUMBA_DISABLE_JIT=1`).",
            "",
            "| glints / model | batched samples/s | ratio | one band a call, samples/s | ratio |",
            "|---|---:|---:|---:|---:|"]
