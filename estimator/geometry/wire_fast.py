@@ -25,7 +25,10 @@ module gives the fits that dependence:
   residual). Leaving dW/dc out altogether (a fixed point over frozen sources) converges
   linearly at that 5-9 % a round.
 
-Other light groups of the rig stay points. numpy only (the Raspberry Pi's budget).
+Other light groups of the rig stay points. numpy, with an optional Numba kernel for the
+alternation and the glints' rows (:mod:`estimator.geometry.wire_kernel`, the default where Numba
+is: a band's few glints cost numpy's per-call overhead, not arithmetic; ``compiled=False``
+forces numpy, which gives the same answers to the sources' tolerance).
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from . import wire_kernel
 from .camera import Camera
 from .jacobians import glint_jacobians
 from .reflection import reflection_points
@@ -126,9 +130,12 @@ class WireLights:
         return self.sources_of(c, radius_m, every, start, tol_m=tol_m, rounds=rounds)
 
     def sources_of(self, centers_m, radius_m, light_index, start=None, *,
-                   tol_m: float = SOURCE_TOL_M, rounds: int | None = None):
+                   tol_m: float = SOURCE_TOL_M, rounds: int | None = None,
+                   compiled: bool | None = None):
         """:meth:`sources` of the lights ``light_index`` (B, k) only (a band's few glints: the
-        alternation then costs per glint seen, not per light).
+        alternation then costs per glint seen, not per light). ``compiled``: run the Numba
+        kernel (:mod:`estimator.geometry.wire_kernel`, the default where Numba is) or numpy
+        (False); both agree to ``tol_m``.
 
         Returns
         -------
@@ -146,18 +153,26 @@ class WireLights:
                 continue
             turn = np.clip(turn, 0, m.turns - 1)
             W0 = None if start is None else np.asarray(start, dtype=np.float64)
-            W, okm = _highlights(self.camera_position_m, m, c, radius_m, W0, tol_m, rounds, turn)
+            W, okm = _highlights(self.camera_position_m, m, c, radius_m, W0, tol_m, rounds, turn,
+                                 compiled)
             out = np.where(on[..., None], W, out)
             ok = np.where(on, okm, ok)
         return out, ok
 
 
-def _highlights(O, m: WireMirror, c, r, W, tol_m, rounds, turn):
+def _highlights(O, m: WireMirror, c, r, W, tol_m, rounds, turn, compiled=None):
     """(B, k, 3) highlights of the turns ``turn`` (B, k) and (B, k) converged: the alternation
     of :mod:`estimator.geometry.wire` from ``W`` (or each turn's default start, its axis moved
-    onto the wire); exactly ``rounds`` rounds when given."""
+    onto the wire); exactly ``rounds`` rounds when given. ``compiled``: the Numba kernel
+    (:mod:`estimator.geometry.wire_kernel`; default where it is enabled) or numpy."""
     axes, rho, L = m.wire_axes_m[turn], m.wire_radius_m, m.led_position_m
     W = np.array(axes - rho * m.radial[turn] if W is None else W, dtype=np.float64)
+    if wire_kernel.ENABLED if compiled is None else compiled:
+        if not wire_kernel.ENABLED:
+            raise ValueError("compiled=True needs Numba (estimator.geometry.wire_kernel.ENABLED)")
+        W, step = wire_kernel.highlights(O, c, r, W, axes, m.normal, rho, L, tol_m=tol_m,
+                                         max_rounds=SOURCE_MAX_ROUNDS, rounds=rounds)
+        return W, (step <= tol_m) if rounds is None else np.isfinite(step)
     step = np.full(W.shape[:2], np.inf)
     for _ in range(SOURCE_MAX_ROUNDS if rounds is None else rounds):
         P, _, _ = reflection_points(O, c, r, W)
@@ -172,7 +187,8 @@ def _highlights(O, m: WireMirror, c, r, W, tol_m, rounds, turn):
 
 
 def wire_glints_jacobian(camera: Camera, lights: WireLights, centers_m, radius_m, start=None, *,
-                         d_sources=None, tol_m: float = SOURCE_TOL_M, light_index=None):
+                         d_sources=None, tol_m: float = SOURCE_TOL_M, light_index=None,
+                         compiled: bool | None = None):
     """Glints of the virtual sources and their total derivative with respect to the cornea
     centre (module docstring).
 
@@ -191,6 +207,9 @@ def wire_glints_jacobian(camera: Camera, lights: WireLights, centers_m, radius_m
         The sources' tolerance.
     light_index : (B, k) int, optional
         Only these lights (their glints (B, k, 2) come back); default every light.
+    compiled : bool, optional
+        The Numba kernels of :mod:`estimator.geometry.wire_kernel` (default where Numba is) or
+        numpy (False): the same answers to the sources' ``tol_m``.
 
     Returns
     -------
@@ -206,15 +225,20 @@ def wire_glints_jacobian(camera: Camera, lights: WireLights, centers_m, radius_m
     c = as_points(centers_m, "centers_m").reshape(-1, 3)
     if light_index is None:
         light_index = np.broadcast_to(np.arange(lights.count), (c.shape[0], lights.count))
-    W, ok = lights.sources_of(c, radius_m, light_index, start, tol_m=tol_m)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        g, _, d_c, _, d_l = glint_jacobians(camera, c, radius_m, W)
+    W, ok = lights.sources_of(c, radius_m, light_index, start, tol_m=tol_m, compiled=compiled)
+    if wire_kernel.ENABLED if compiled is None else compiled:
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            g, d_c, d_l = wire_kernel.glints_and_rows(camera, c, radius_m, W)
+    else:
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            g, _, d_c, _, d_l = glint_jacobians(camera, c, radius_m, W)
     dW = d_sources
     if dW is None:
         dW = np.empty(W.shape + (3,))
         for k in range(3):
             ck = c.copy()
             ck[:, k] += SOURCE_STEP_M
-            Wk, _ = lights.sources_of(ck, radius_m, light_index, W, rounds=JACOBIAN_ROUNDS)
+            Wk, _ = lights.sources_of(ck, radius_m, light_index, W, rounds=JACOBIAN_ROUNDS,
+                                      compiled=compiled)
             dW[..., k] = (Wk - W) / SOURCE_STEP_M
     return g, d_c + d_l @ dW, W, ok, dW

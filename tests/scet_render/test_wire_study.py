@@ -119,3 +119,87 @@ def test_rendered_file_is_checked_and_tabled(tmp_path):
     t = r["table"]
     assert np.median(t["option"]["geometric"]["errors_deg"]) < np.median(t["calibrated"]["geometric"]["errors_deg"])
     assert len(table_lines(t)) == 2 + 6
+
+
+def test_paired_difference_finds_a_known_shift():
+    """(c) - ideal on the same poses: errors that are the ideal's plus 0.05 deg give +0.05 deg
+    (median and mean) with an interval around it, a pose dropped where either is NaN; no
+    shift gives an interval holding 0."""
+    from scet_render.study.wire_track import paired_difference
+
+    rng = np.random.default_rng(3)
+    ideal = rng.uniform(0.0, 0.2, 12)
+    a = ideal + 0.05 + rng.normal(0, 0.005, 12)
+    a[4] = np.nan
+    d = paired_difference(a, ideal)
+    assert d["poses"] == 11 and d["per_pose"].shape == (11,)
+    for k in ("median", "mean"):
+        lo, hi = d[f"{k}_ci"]
+        # 0.005 deg of per-pose scatter over 11 poses: the interval is ~+-0.05 wide at most
+        # (the median of a spread-out 0-0.2 deg set moves with the resampled poses).
+        assert lo <= d[k] <= hi and lo < 0.05 < hi and hi - lo < 0.1
+    assert abs(d["mean"] - 0.05) < 0.01
+    assert paired_difference(a, ideal)["median_ci"] == d["median_ci"]  # seeded
+    same = paired_difference(ideal, ideal)
+    assert same["median"] == 0.0 and same["median_ci"] == (0.0, 0.0)
+    with pytest.raises(ValueError, match="errors_deg and ideal_deg"):
+        paired_difference(a, ideal[:5])
+
+
+def test_ideal_setup_puts_point_sources_where_the_model_does():
+    """The ideal scene: the wire group's turns as plain spheres at the point model's positions,
+    the rest of the setup untouched."""
+    from estimator.scene import load_scene
+    from estimator.geometry.wire import setup_wire_mirrors
+    from scet_render.study.wire_track import IDEAL_SOURCE_M, ideal_setup
+
+    wire = load_scene("prototype_ov5647_wire")
+    ideal = ideal_setup(wire)
+    assert setup_wire_mirrors(ideal) == [] and len(setup_wire_mirrors(wire)) == 1
+    assert np.array_equal(ideal.lights_world_m, wire.lights_world_m)
+    assert all(g.kind == "list" and g.source_radius_m == IDEAL_SOURCE_M / 2 for g in ideal.lights.groups)
+    assert ideal.camera == wire.camera and ideal.eye == wire.eye
+
+
+def test_rendered_ideal_row_and_difference(tmp_path):
+    """The rendered ideal beside the wire renders: refused naming the key when its poses are not
+    the wire renders'; with the point model's own glints (+ 0.05 px of noise standing in for
+    centroids) its row is the floor, and (c) on the wire's glints (same noise) lies within
+    0.1 deg of it."""
+    from estimator.scene import load_scene
+    from scet_render.simulate import parse_targets
+    from scet_render.study.wire import wire_glints_for
+    from scet_render.study.wire_track import (RENDERED_FORMAT, RENDERED_VERSION, ideal_accuracy,
+                                              ideal_setup, led_size_accuracy, load_rendered,
+                                              rendered_accuracy)
+
+    setup = load_scene("prototype_ov5647_wire")
+    ideal = ideal_setup(setup)
+    rng = np.random.default_rng(7)
+    files = {}
+    for name, s in (("wire", setup), ("ideal", ideal)):
+        data = {"format": RENDERED_FORMAT, "version": RENDERED_VERSION, "spp": 1, "led_m": 2e-3}
+        for part, t in (("calibration", parse_targets("calib:5x5", s)), ("test", s.screen.grid(3, 2))):
+            g, v = wire_glints_for(s, t)
+            g = np.where(v[..., None], g, np.nan)
+            data.update({f"{part}_targets_m": t, f"{part}_labels_px": g, f"{part}_seconds": np.ones(len(t)),
+                         f"{part}_centroids_px": g + rng.normal(0, 0.05, g.shape)})
+        np.savez(tmp_path / f"{name}.npz", **data)
+        files[name] = load_rendered(tmp_path / f"{name}.npz")
+    r = rendered_accuracy(setup, files["wire"], files["ideal"], led_sizes_m=())
+    ide = r["ideal"]
+    assert 0.03 < np.median(ide["centroid_error_px"]) < 0.1
+    # 0.05 px of glint noise at 643 px is ~0.02 deg of gaze: the ideal row stays below 0.1 deg.
+    assert np.nanmedian(ide["row"]["geometric"]["errors_deg"]) < 0.1
+    d = ide["option_minus_ideal"]["geometric"]
+    assert d["poses"] == 6 and abs(d["median"]) < 0.1 and d["median_ci"][0] <= d["median"] <= d["median_ci"][1]
+    assert ide["led_sizes"] == {}
+    # The option models the LED as a point: its error on noise-free disk glints shrinks with
+    # the LED (the rendered poses: 0.069 deg median at 2 mm, 0.022 at the scene's 0.5 mm; here
+    # 2 rings of disk points instead of 8, to stay fast).
+    sizes = led_size_accuracy(setup, files["wire"], (2e-3, 0.5e-3), rings=2)
+    assert sizes[0.5e-3]["rms_px"] < sizes[2e-3]["rms_px"]
+    assert sizes[0.5e-3]["median_deg"] < sizes[2e-3]["median_deg"] < 0.2
+    bad = dict(files["ideal"], test_targets_m=files["ideal"]["test_targets_m"][:-1])
+    with pytest.raises(ValueError, match="test_targets_m"):
+        ideal_accuracy(setup, files["wire"], bad, r["table"])
