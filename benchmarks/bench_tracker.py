@@ -267,7 +267,7 @@ def breakdown(setup, cal, method, frames, compiled=True) -> dict:
     if method == "geometric":  # polynomial gaze's map is its mapping's (timed below)
         timed_point = _Timed(saved[1], totals, "map")
         context_module.BandContext.gaze_point = lambda self, c, a: timed_point(self, c, a)
-    tr.of_strobe = _Timed(tr.of_strobe, totals, "group")
+    tr.group = _Timed(tr.group, totals, "group")
     m.match = _Timed(m.match, totals, "search")
     m.match_near = _Timed(m.match_near, totals, "prior")
     if tr.context.gaze_map is not None:
