@@ -59,6 +59,7 @@ saccades that cross a frame gap weigh in as in a longer run.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import sys
@@ -86,7 +87,7 @@ import estimator.tracking.tracker as tracker_module  # noqa: E402
 from estimator.folders import iter_folder, load_calibration  # noqa: E402
 from estimator.glints import GlintDetector  # noqa: E402
 from estimator.reasons import Reason  # noqa: E402
-from estimator.scene import load_scene  # noqa: E402
+from estimator.scene import load_scene, parse_scene  # noqa: E402
 from estimator.tracking import Tracker  # noqa: E402
 from tests.estimator.simulated import ground_truth_calibration  # noqa: E402
 
@@ -392,6 +393,18 @@ def compare_distortion(setup, frames, rounds: int, coefficients) -> None:
           f"({np.mean([len(d) for d in dets]):.1f} glints), distortion {list(coefficients)}")
 
 
+def dataset_scene(ap, folder: Path):
+    """The scene a rendered dataset was rendered with (its manifest's ``scene.toml``: a
+    ``prototype_ov5647`` dataset is tracked with the prototype's camera and lights, not
+    paper_sim's)."""
+    manifest = folder / "manifest.json"
+    try:
+        toml = json.loads(manifest.read_text())["scene"]["toml"]
+        return parse_scene(toml, f"{manifest} (its scene.toml)")
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        ap.error(f"{manifest}: no readable scene (key scene.toml): {exc}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=60)
@@ -423,7 +436,7 @@ def main(argv=None):
     clock = time.process_time if args.clock == "cpu" else time.perf_counter
     if args.clock == "cpu" and time.get_clock_info("thread_time").resolution <= 1e-6:
         band_clock = time.thread_time
-    setup = load_scene("paper_sim")
+    setup = load_scene("paper_sim") if args.dataset is None else dataset_scene(ap, args.dataset)
     if args.conic is not None:
         if args.dataset is not None:
             ap.error("--conic runs on synthetic frames; leave out --dataset")
@@ -435,12 +448,11 @@ def main(argv=None):
     rng = np.random.default_rng(0)
     cv2.setNumThreads(1)
     if args.dataset is not None:
-        import json
-
         from estimator.banding import scaled_setup
 
         width = json.loads((args.dataset / "manifest.json").read_text())["image"]["width_px"]
-        setup = scaled_setup(setup, setup.camera.width_px // int(width))
+        if setup.camera.width_px != int(width):  # a quick render records the full-size scene
+            setup = scaled_setup(setup, setup.camera.width_px // int(width))
         frames = [(f, t0, img) for f, t0, img, err in iter_folder(args.dataset, setup)
                   if err is None][: args.frames]
     else:
