@@ -4,7 +4,8 @@ path against the hypothesis search on every band, in one run on the same frames.
 Frames: 640x480 10-bit banded frames of paper_sim (Gaussian glints at their closed-form
 positions for an eye making saccades, each pulse's glints at the eye's pose then, every pulse's
 row weights, an eye-like background, shot and read noise; :func:`bench_glints.moving_sequence`),
-or with ``--dataset DIR`` the PNG frames of a rendered dataset. Detection is timed through
+or with ``--dataset DIR`` the PNG frames of a rendered dataset (tracked with the scene its
+manifest records and that scene's ground-truth calibration). Detection is timed through
 :class:`estimator.glints.GlintDetector` (one pass over the frames as a stream, after a warm-up
 pass that loads its compiled kernels). End to end, :meth:`estimator.tracker.Tracker.process`
 (detect, group by strobe, predict, assign, fit, map), both gaze methods, ``cheap=False`` (the
