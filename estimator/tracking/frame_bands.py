@@ -8,7 +8,7 @@ j start at s_j - t0_f = (phase - f Δt) + j Δ_clk; writing phase - f Δt = δ +
 locked to the frame (P Δ_clk = Δt, the prototype's 16 x 1039.75 us = 16.636 ms) has one δ
 for the whole stream, so the layout is computed once and later frames only check it and
 shift the pulse indices (measured on an idle x86 core: ``band_rows`` 54 us a frame, the
-checked lookup ~15 us).
+checked lookup ~30 us).
 
 The cached rows are exactly what ``band_rows`` gives: it keeps a pulse by its integer first
 and last rows alone (floor(k + ε) + 1 and ceil(k3 - ε) - 1 of the float edges
