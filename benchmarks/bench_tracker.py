@@ -4,7 +4,8 @@ path against the hypothesis search on every band, in one run on the same frames.
 Frames: 640x480 10-bit banded frames of paper_sim (Gaussian glints at their closed-form
 positions for an eye making saccades, each pulse's glints at the eye's pose then, every pulse's
 row weights, an eye-like background, shot and read noise; :func:`bench_glints.moving_sequence`),
-or with ``--dataset DIR`` the PNG frames of a rendered dataset. Detection is timed through
+or with ``--dataset DIR`` the PNG frames of a rendered dataset (tracked with the scene its
+manifest records and that scene's ground-truth calibration). Detection is timed through
 :class:`estimator.glints.GlintDetector` (one pass over the frames as a stream, after a warm-up
 pass that loads its compiled kernels). End to end, :meth:`estimator.tracker.Tracker.process`
 (detect, group by strobe, predict, assign, fit, map), both gaze methods, ``cheap=False`` (the
@@ -59,6 +60,7 @@ saccades that cross a frame gap weigh in as in a longer run.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import platform
 import sys
@@ -86,7 +88,7 @@ import estimator.tracking.tracker as tracker_module  # noqa: E402
 from estimator.folders import iter_folder, load_calibration  # noqa: E402
 from estimator.glints import GlintDetector  # noqa: E402
 from estimator.reasons import Reason  # noqa: E402
-from estimator.scene import load_scene  # noqa: E402
+from estimator.scene import load_scene, parse_scene  # noqa: E402
 from estimator.tracking import Tracker  # noqa: E402
 from tests.estimator.simulated import ground_truth_calibration  # noqa: E402
 
@@ -267,7 +269,7 @@ def breakdown(setup, cal, method, frames, compiled=True) -> dict:
     if method == "geometric":  # polynomial gaze's map is its mapping's (timed below)
         timed_point = _Timed(saved[1], totals, "map")
         context_module.BandContext.gaze_point = lambda self, c, a: timed_point(self, c, a)
-    tr.of_strobe = _Timed(tr.of_strobe, totals, "group")
+    tr.group = _Timed(tr.group, totals, "group")
     m.match = _Timed(m.match, totals, "search")
     m.match_near = _Timed(m.match_near, totals, "prior")
     if tr.context.gaze_map is not None:
@@ -392,6 +394,18 @@ def compare_distortion(setup, frames, rounds: int, coefficients) -> None:
           f"({np.mean([len(d) for d in dets]):.1f} glints), distortion {list(coefficients)}")
 
 
+def dataset_scene(ap, folder: Path):
+    """The scene a rendered dataset was rendered with (its manifest's ``scene.toml``: a
+    ``prototype_ov5647`` dataset is tracked with the prototype's camera and lights, not
+    paper_sim's)."""
+    manifest = folder / "manifest.json"
+    try:
+        toml = json.loads(manifest.read_text())["scene"]["toml"]
+        return parse_scene(toml, f"{manifest} (its scene.toml)")
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        ap.error(f"{manifest}: no readable scene (key scene.toml): {exc}")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=60)
@@ -423,7 +437,7 @@ def main(argv=None):
     clock = time.process_time if args.clock == "cpu" else time.perf_counter
     if args.clock == "cpu" and time.get_clock_info("thread_time").resolution <= 1e-6:
         band_clock = time.thread_time
-    setup = load_scene("paper_sim")
+    setup = load_scene("paper_sim") if args.dataset is None else dataset_scene(ap, args.dataset)
     if args.conic is not None:
         if args.dataset is not None:
             ap.error("--conic runs on synthetic frames; leave out --dataset")
@@ -435,12 +449,11 @@ def main(argv=None):
     rng = np.random.default_rng(0)
     cv2.setNumThreads(1)
     if args.dataset is not None:
-        import json
-
         from estimator.banding import scaled_setup
 
         width = json.loads((args.dataset / "manifest.json").read_text())["image"]["width_px"]
-        setup = scaled_setup(setup, setup.camera.width_px // int(width))
+        if setup.camera.width_px != int(width):  # a quick render records the full-size scene
+            setup = scaled_setup(setup, setup.camera.width_px // int(width))
         frames = [(f, t0, img) for f, t0, img, err in iter_folder(args.dataset, setup)
                   if err is None][: args.frames]
     else:

@@ -30,15 +30,25 @@ def _line_kernel(length: int) -> np.ndarray:
 
 
 def _flat_true(mask: np.ndarray) -> np.ndarray:
-    """Sorted flat indices of the true pixels of a sparse bool image: the 8-byte words that
-    hold any first (numpy's nonzero is fast on bool, not on wider types), then within them;
-    2x faster than ``np.flatnonzero`` on a VGA frame."""
+    """Sorted flat indices of the true pixels of a bool image: where it is sparse, the 8-byte
+    words that hold any first (numpy's nonzero is fast on bool, not on wider types), then
+    within them, 2x faster than ``np.flatnonzero`` on a VGA frame; where more than
+    :data:`_DENSE_WORDS` of the words hold one, ``np.flatnonzero`` itself (the prototype's
+    16-spp renders put 27 % of their pixels above the lowest threshold: 1.31 against
+    0.24 ms)."""
     flat = mask.reshape(-1)
     if flat.size % 8:
         return np.flatnonzero(flat)
     words = np.flatnonzero(flat.view(np.uint64) != 0)
+    if words.size > _DENSE_WORDS * (flat.size // 8):
+        return np.flatnonzero(flat)
     k = np.flatnonzero(flat.reshape(-1, 8)[words])
     return words[k >> 3] * 8 + (k & 7)
+
+
+#: Share of a bool image's 8-byte words holding a true pixel above which :func:`_flat_true`
+#: takes ``np.flatnonzero`` (measured on a VGA mask: the word path wins below ~10 %).
+_DENSE_WORDS = 0.1
 
 
 @dataclass(frozen=True, slots=True)

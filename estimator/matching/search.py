@@ -89,9 +89,15 @@ class HypothesisSearch:
             return 0
         pred = self.grid_glints_px[near]
         cand = self.grid_visible[near] & (pred[..., 1] >= lo) & (pred[..., 1] <= hi)
-        d2 = ((pred[:, :, None, :] - g[None, None]) ** 2).sum(-1)  # (nodes, n, k)
-        found = ((d2 <= radius2) & cand[..., None]).any(axis=1).sum(axis=1)
-        return int(np.minimum(cand.sum(axis=1), found).max())
+        # Distances of the candidates alone, (pairs, k), node after node: a band of clutter
+        # has hundreds of detections, and (nodes, n, k) of every light took ~0.3 s a band.
+        node, light = np.nonzero(cand)
+        if node.size == 0:
+            return 0
+        d2 = ((pred[node, light][:, None, :] - g[None]) ** 2).sum(-1)
+        first = np.flatnonzero(np.r_[True, node[1:] != node[:-1]])
+        found = np.logical_or.reduceat(d2 <= radius2, first, axis=0).sum(axis=1)
+        return int(np.minimum(cand.sum(axis=1)[node[first]], found).max())
 
     def _grid_drift(self) -> float:
         """The furthest any light's glint moves between neighbouring grid nodes (px), both

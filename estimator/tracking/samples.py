@@ -154,14 +154,32 @@ def estimated_sample(frame_index: int, strobe_index: int, time_s: float, *, scre
                       Reason.OK, confidence.copy(), prior_assisted=prior_assisted)
 
 
+def _frozen(a: np.ndarray) -> np.ndarray:
+    a.setflags(write=False)
+    return a
+
+
+#: The arrays every failed sample shares (read-only: a sample is immutable, and half the
+#: bands of a stream fail, most without a glint; building these per sample was ~a tenth of
+#: such a band's cost).
+_NAN2, _NAN3 = _frozen(np.full(2, np.nan)), _frozen(np.full(3, np.nan))
+_NO_GLINTS, _NO_LIGHTS = _frozen(np.zeros((0, 2))), _frozen(np.zeros(0, dtype=np.int64))
+_NO_CONFIDENCE = _frozen(np.zeros(0))
+
+
 def failed_sample(frame_index: int, strobe_index: int, time_s: float, reason: str,
                   glints_px=None, light_index=None) -> GazeSample:
     """A NaN sample of band ``strobe_index`` of frame ``frame_index`` failed for ``reason``
-    (with the detections and lights it had, if any)."""
-    g = np.zeros((0, 2)) if glints_px is None else np.asarray(glints_px, dtype=np.float64)
-    li = np.zeros(0, dtype=np.int64) if light_index is None else np.asarray(light_index, np.int64)
-    return GazeSample(frame_index, strobe_index, time_s, np.full(2, np.nan), np.full(3, np.nan),
-                      g, li, float("nan"), reason, np.zeros(li.shape[0]))
+    (with the detections and lights it had, if any). Its NaN screen point and centre, and
+    its empty arrays, are read-only arrays shared by all failed samples."""
+    g = _NO_GLINTS if glints_px is None else np.asarray(glints_px, dtype=np.float64)
+    if light_index is None:
+        li, conf = _NO_LIGHTS, _NO_CONFIDENCE
+    else:
+        li = np.asarray(light_index, np.int64)
+        conf = np.zeros(li.shape[0]) if li.shape[0] else _NO_CONFIDENCE
+    return GazeSample(frame_index, strobe_index, time_s, _NAN2, _NAN3, g, li, math.nan,
+                      reason, conf)
 
 
 SAMPLE_COLUMNS = ("frame", "strobe", "time_s", "screen_x_m", "screen_y_m", "cornea_x_m",

@@ -40,7 +40,6 @@ from dataclasses import replace
 
 import numpy as np
 
-from ..banding import band_rows, strobe_instant
 from ..calibration import Calibration
 from ..gaze import calibrated_problems
 from ..glints import NO_BAND, DetectionParams, GlintDetector
@@ -51,6 +50,7 @@ from ..setup import Setup
 from .bands import band_sample
 from .context import METHODS, MIN_GLINTS, BandContext
 from .cut_glints import flagged, kept_detections
+from .frame_bands import FrameBands
 from .samples import BandPrior, GazeSample, failed_sample
 from .state import StreamState
 
@@ -168,6 +168,8 @@ class Tracker:
         self.context = BandContext(setup, calibration, method, mapping, gaze_map, problems,
                                    matcher, follower, prior).with_kernel()
         self.counts = {"cheap": 0, "search": 0, "unfillable": 0, "again": 0}
+        #: Each frame's bands and strobe instants, computed once per strobe phase.
+        self.frame_bands = FrameBands(setup.sensor, setup.strobe)
         #: The last frame index taken (a frame not after it is ``frame_out_of_order``).
         self.last_frame_index: int | None = None
         self.reset()
@@ -209,11 +211,7 @@ class Tracker:
         list of GazeSample, in strobe order.
         """
         frame_index = int(frame_index)
-        sensor, strobe = self.setup.sensor, self.setup.strobe
-        shift = 0.0 if frame_start_s is None else float(frame_start_s) - frame_index * sensor.frame_period_s
-        pulses, starts, first, last = band_rows(sensor, strobe, frame_index)
-        bands = [(int(j), (int(a), int(b))) for j, a, b in zip(pulses, first, last)]
-        times = (strobe_instant(starts, strobe.pulse_s) + shift).tolist()
+        bands, times = self.frame_bands(frame_index, frame_start_s)
         if self.last_frame_index is not None and frame_index <= self.last_frame_index:
             # The stream's state is the newer frame's: an older one cannot be followed from
             # it (its bands would precede the prior), nor may it undo it.
@@ -236,11 +234,10 @@ class Tracker:
             # The one place detections enter the tracker's geometry: through the lens into the
             # ideal pinhole image (a pinhole camera passes them on untouched).
             det = det.select(~det.has(NO_BAND)).undistorted(self.lens_camera)
-            glints, strobes, flux = det.glints_px, det.strobe_index, det.intensity
+            spans, glints, flux = self.group(det, bands)
             flag = self.flags_cut_glints
-            samples = [self.band(frame_index, self.of_strobe(glints, strobes, b[0]), b, t,
-                                 flux[strobes == b[0]] if flag else None)
-                       for b, t in zip(bands, times)]
+            samples = [self.band(frame_index, glints[a:b], band, t, flux[a:b] if flag else None)
+                       for (a, b), band, t in zip(spans, bands, times)]
             if self.detector.focus:
                 self.detector.focus_on(self.focus_points(samples))
             return samples
@@ -267,10 +264,19 @@ class Tracker:
         return np.concatenate(used)
 
     @staticmethod
-    def of_strobe(glints_px, strobes, j: int) -> np.ndarray:
-        """The detections (k, 2) of ``glints_px`` (m, 2) stamped with strobe j (``strobes``
-        (m,))."""
-        return glints_px[strobes == j]
+    def group(det, bands) -> tuple[list, np.ndarray, np.ndarray]:
+        """The detections ``det`` of a frame grouped by strobe, once for all its ``bands``
+        ([(pulse j, rows)]): ([(start, stop)] of each band's rows in the glints and fluxes,
+        glints (m, 2), fluxes (m,)), the detections in the order of their strobes, each
+        strobe's in the detector's order (a stable sort: each band's slice is the rows
+        ``glints_px[strobe_index == j]`` of the frame's detections)."""
+        strobes = det.strobe_index
+        order = np.argsort(strobes, kind="stable")
+        ranked = strobes[order]
+        pulses = np.fromiter((b[0] for b in bands), dtype=np.int64, count=len(bands))
+        lo = np.searchsorted(ranked, pulses, side="left").tolist()
+        hi = np.searchsorted(ranked, pulses, side="right").tolist()
+        return list(zip(lo, hi)), det.glints_px[order], det.intensity[order]
 
     def frame_check(self, frame) -> str | None:
         """Why ``frame`` cannot be tracked (a :class:`~estimator.reasons.Reason`), or None."""
