@@ -42,6 +42,25 @@ ENABLED = bool(_COMPILED) and numba is not None
 __all__ = ["ENABLED", "highlights", "glints_and_rows"]
 
 
+def _plane_basis(lx, ly, lz, e1x, e1y, e1z):
+    """The plane of reflection spanned by unit ``e1`` (toward the viewpoint) and the source
+    offset ``l`` from the sphere's centre: l's components along e1 and normal to it, |l|,
+    1 / |l| (1 where l = 0) and the unit e2 normal to e1 in the plane (any plane through e1
+    where l lies on its line)."""
+    l_par = lx * e1x + ly * e1y + lz * e1z
+    px, py, pz = lx - l_par * e1x, ly - l_par * e1y, lz - l_par * e1z
+    l_perp = math.sqrt(px * px + py * py + pz * pz)
+    l_norm = math.sqrt(l_par * l_par + l_perp * l_perp)
+    inv_n = 1.0 / l_norm if l_norm > 0 else 1.0
+    if l_perp <= 1e-12 * l_norm:  # source on the line through the viewpoint and the centre
+        fx, fy, fz = e1y, -e1x, 0.0
+        if math.sqrt(fx * fx + fy * fy) <= 1e-6:
+            fx, fy, fz = 0.0, e1z, -e1y
+        fn = math.sqrt(fx * fx + fy * fy + fz * fz)
+        return l_par, l_perp, l_norm, inv_n, fx / fn, fy / fn, fz / fn
+    return l_par, l_perp, l_norm, inv_n, px / l_perp, py / l_perp, pz / l_perp
+
+
 def _sphere_point(O, c, r, W, out):
     """Reflection point on the sphere (centre ``c``, radius ``r``) of light from ``W`` toward
     ``O`` into ``out`` (3,) (world frame; :func:`estimator.geometry.reflection_points`, whose
@@ -51,19 +70,7 @@ def _sphere_point(O, c, r, W, out):
     inv_o = 1.0 / o_norm if o_norm > 0 else 1.0
     e1x, e1y, e1z = dx * inv_o, dy * inv_o, dz * inv_o
     lx, ly, lz = W[0] - c[0], W[1] - c[1], W[2] - c[2]
-    l_par = lx * e1x + ly * e1y + lz * e1z
-    px, py, pz = lx - l_par * e1x, ly - l_par * e1y, lz - l_par * e1z
-    l_perp = math.sqrt(px * px + py * py + pz * pz)
-    l_norm = math.sqrt(l_par * l_par + l_perp * l_perp)
-    inv_n = 1.0 / l_norm if l_norm > 0 else 1.0
-    if l_perp <= 1e-12 * l_norm:  # source on the line through O and c: any plane through it
-        fx, fy, fz = e1y, -e1x, 0.0
-        if math.sqrt(fx * fx + fy * fy) <= 1e-6:
-            fx, fy, fz = 0.0, e1z, -e1y
-        fn = math.sqrt(fx * fx + fy * fy + fz * fz)
-        e2x, e2y, e2z = fx / fn, fy / fn, fz / fn
-    else:
-        e2x, e2y, e2z = px / l_perp, py / l_perp, pz / l_perp
+    l_par, l_perp, l_norm, inv_n, e2x, e2y, e2z = _plane_basis(lx, ly, lz, e1x, e1y, e1z)
     a, b = o_norm / r, l_norm / r
     if not (a > 1 and b > 1):
         a, b = 2.0, 2.0
@@ -184,19 +191,8 @@ def _glints_rows_kernel(R, O, intr, c, radius, W, g, d_c, d_l):
             lx = R[0, 0] * q0 + R[0, 1] * q1 + R[0, 2] * q2 - cx
             ly = R[1, 0] * q0 + R[1, 1] * q1 + R[1, 2] * q2 - cy
             lz = R[2, 0] * q0 + R[2, 1] * q1 + R[2, 2] * q2 - cz
-            l_par = lx * e1x + ly * e1y + lz * e1z
-            px, py, pz = lx - l_par * e1x, ly - l_par * e1y, lz - l_par * e1z
-            l_perp = math.sqrt(px * px + py * py + pz * pz)
-            l_norm = math.sqrt(l_par * l_par + l_perp * l_perp)
-            inv_n = 1.0 / l_norm if l_norm > 0 else 1.0
-            if l_perp <= 1e-12 * l_norm:
-                fx, fy, fz = e1y, -e1x, 0.0
-                if math.sqrt(fx * fx + fy * fy) <= 1e-6:
-                    fx, fy, fz = 0.0, e1z, -e1y
-                fn = math.sqrt(fx * fx + fy * fy + fz * fz)
-                e2x, e2y, e2z = fx / fn, fy / fn, fz / fn
-            else:
-                e2x, e2y, e2z = px / l_perp, py / l_perp, pz / l_perp
+            l_par, l_perp, l_norm, inv_n, e2x, e2y, e2z = _plane_basis(lx, ly, lz,
+                                                                       e1x, e1y, e1z)
             a, b = o_norm / radius, l_norm / radius
             if not (a > 1 and b > 1):
                 a, b = 2.0, 2.0
@@ -222,6 +218,7 @@ def _glints_rows_kernel(R, O, intr, c, radius, W, g, d_c, d_l):
 
 if ENABLED:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+    _plane_basis = _jit(_plane_basis)
     _sphere_point = _jit(_sphere_point)
     _cylinder_point = _jit(_cylinder_point)
     _highlights_kernel = _jit(_highlights_kernel)
