@@ -25,7 +25,8 @@ from estimator.setup import Setup
 #: (seed 0), more than the 30 issue 34 asks for; ~5 s a frame at 4 spp (dielectric, MNEE;
 #: measured over 6 frames on a shared 2-core machine, ~2.5 s with the conductor cornea), but
 #: 12-20 s a frame with one Dr.Jit thread at nice 10 on that machine under load (issue 34's
-#: third round rendered 206 frames in 48 min).
+#: third round rendered 206 frames in 48 min; all 570 took 28 min on 2026-12-05 after MNEE's
+#: variance cut, at 2.6-5 s a frame).
 RENDER_FRAMES = 570
 RENDER_SPP = 4
 #: Today's default cornea (the first full-size study rendered it as a conductor).
