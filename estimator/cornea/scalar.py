@@ -36,9 +36,9 @@ _MAX_NEWTON_ITER = 60
 
 
 def _condition(a, b, ab, cp, sp, ct, st):
-    """F(θ), F'(θ) of (R) from the cosines and sines of θ and φ (roots._reflection_condition_unit;
-    :mod:`estimator.geometry.compiled`'s, line for line, which keeps it behind Numba's
-    dispatcher where its JIT is on)."""
+    """F(θ), F'(θ) of (R) from the cosines and sines of θ and φ
+    (``roots._reflection_condition_unit``; :mod:`estimator.geometry.compiled`'s, line for
+    line, which keeps it behind Numba's dispatcher where its JIT is on)."""
     s1 = sp * ct - cp * st
     c1 = cp * ct + sp * st
     s2 = s1 * ct - c1 * st

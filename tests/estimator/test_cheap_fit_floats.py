@@ -74,8 +74,8 @@ def test_the_float_fit_is_the_compiled_fit_to_the_last_bit(setup, calibration, m
 
 
 @pytest.mark.parametrize("model", ["orbit", "center"])
-def test_the_float_fit_with_the_early_stop_reaches_the_batched_minimum(setup, calibration,  # noqa: F811
-                                                                       model):
+def test_the_float_fit_with_the_early_stop_reaches_the_batched_minimum(
+        setup, calibration, model):  # noqa: F811
     """With the batched fit's stop (a Gauss-Newton step below 1e-7 m is the last) the float
     fit ends within that stop's error of fit_cornea's minimum (with and without a prior), and
     of the compiled fit's where Numba is installed."""
