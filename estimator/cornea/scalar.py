@@ -28,7 +28,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["camera_floats", "lm_floats"]
+__all__ = ["camera_floats", "lights_in_camera", "lm_floats", "glints_floats"]
 
 #: Newton's stopping step and iteration cap of the bracketed root (as the compiled module's).
 _STEP_STOP_RAD = 1e-8
@@ -95,7 +95,7 @@ def camera_floats(R, O, intr, size) -> tuple:
             *(float(v) for v in size))
 
 
-def _lights_in_camera(cam, lights):
+def lights_in_camera(cam, lights):
     """R (L - O) of each light (k, 3): the part of the kernels' per-light rotation that does
     not depend on the cornea (the same products and sums)."""
     r00, r01, r02, r10, r11, r12, r20, r21, r22, o0, o1, o2 = cam[:12]
@@ -322,7 +322,7 @@ def lm_floats(cam, model, x0, ce, rco, radius, lights, glints, max_iter, xtol, g
     converged : bool
     """
     p = len(x0)
-    rq = _lights_in_camera(cam, lights)
+    rq = lights_in_camera(cam, lights)
     glints = [(float(g[0]), float(g[1])) for g in glints]
     ce = (float(ce[0]), float(ce[1]), float(ce[2])) if model == 1 else ce
     pm = [float(v) for v in pm]
@@ -382,3 +382,106 @@ def lm_floats(cam, model, x0, ce, rco, radius, lights, glints, max_iter, xtol, g
             converged = True
             break
     return x, JtJ, cost - _prior_cost(x, pm, P, p), iters, converged
+
+
+def glints_floats(cam, center, radius, rq, axis, cap_cos_min, with_jacobian):
+    """Glints, visibility and (``with_jacobian``) d glint / d centre of every light for one
+    cornea ``center`` (3 floats, m), with the cap test about the optical ``axis`` (3 floats,
+    world) at ``cap_cos_min``: :func:`estimator.geometry.compiled.glints_kernel` with
+    ``use_cap``, on floats (its operations in its order; ``rq``: :func:`lights_in_camera`).
+
+    Returns
+    -------
+    glints : list of n (u, v) float
+    visible : list of n bool
+    jac : list of n ((3 float), (3 float)) or None
+        The rows d u / d c and d v / d c (px per m, world frame).
+    """
+    r00, r01, r02, r10, r11, r12, r20, r21, r22, o0, o1, o2, fx, fy, ccx, ccy, w, h = cam
+    d0, d1, d2 = center[0] - o0, center[1] - o1, center[2] - o2
+    cx = r00 * d0 + r01 * d1 + r02 * d2
+    cy = r10 * d0 + r11 * d1 + r12 * d2
+    cz = r20 * d0 + r21 * d1 + r22 * d2
+    ax = r00 * axis[0] + r01 * axis[1] + r02 * axis[2]
+    ay = r10 * axis[0] + r11 * axis[1] + r12 * axis[2]
+    az = r20 * axis[0] + r21 * axis[1] + r22 * axis[2]
+    o_norm = math.sqrt(cx * cx + cy * cy + cz * cz)
+    inv_o = 1.0 / o_norm if o_norm > 0 else 1.0
+    e1x, e1y, e1z = -cx * inv_o, -cy * inv_o, -cz * inv_o
+    glints, visible, jac = [], [], [] if with_jacobian else None
+    u_hi, v_hi = w - 0.5, h - 0.5
+    for qx, qy, qz in rq:
+        lx, ly, lz = qx - cx, qy - cy, qz - cz
+        l_par = lx * e1x + ly * e1y + lz * e1z
+        px, py, pz = lx - l_par * e1x, ly - l_par * e1y, lz - l_par * e1z
+        l_perp = math.sqrt(px * px + py * py + pz * pz)
+        l_norm = math.sqrt(l_par * l_par + l_perp * l_perp)
+        inv_n = 1.0 / l_norm if l_norm > 0 else 1.0
+        if l_perp <= 1e-12 * l_norm:  # light on the camera-centre line: any plane through it
+            gx, gy, gz = e1y, -e1x, 0.0
+            if math.sqrt(gx * gx + gy * gy) <= 1e-6:
+                gx, gy, gz = 0.0, e1z, -e1y
+            fn = math.sqrt(gx * gx + gy * gy + gz * gz)
+            e2x, e2y, e2z = gx / fn, gy / fn, gz / fn
+        else:
+            inv = 1.0 / l_perp
+            e2x, e2y, e2z = px * inv, py * inv, pz * inv
+        alpha, beta = o_norm / radius, l_norm / radius
+        cp, sp = l_par * inv_n, l_perp * inv_n
+        outside = alpha > 1 and beta > 1
+        a, b = (alpha, beta) if outside else (2.0, 2.0)
+        ct, st = _root(a, b, cp, sp)
+        nx, ny, nz = ct * e1x + st * e2x, ct * e1y + st * e2y, ct * e1z + st * e2z
+        X, Y, Z = cx + radius * nx, cy + radius * ny, cz + radius * nz
+        c1 = cp * ct + sp * st
+        ok = outside and a * ct > 1 and b * c1 > 1
+        ok = ok and nx * ax + ny * ay + nz * az >= cap_cos_min
+        if Z > 0:
+            iz = 1.0 / Z
+            u = fx * X * iz + ccx
+            v = fy * Y * iz + ccy
+        else:
+            u = v = math.nan
+        glints.append((u, v))
+        visible.append(ok and -0.5 <= u <= u_hi and -0.5 <= v <= v_hi)
+        if with_jacobian:
+            jac.append(_jacobian_rows(cam, radius, a, b, ct, st, c1, e1x, e1y, e1z, e2x, e2y,
+                                      e2z, nx, ny, nz, X, Y, Z))
+    return glints, visible, jac
+
+
+def _jacobian_rows(cam, radius, a, b, ct, st, c1, e1x, e1y, e1z, e2x, e2y, e2z, nx, ny, nz, X,
+                   Y, Z):
+    """One light's d glint / d centre rows ((3 float), (3 float)), world frame
+    (``compiled._jacobian_rows``, its operations in its order)."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = cam[:9]
+    fx, fy = cam[12], cam[13]
+    inv_qa = 1.0 / math.sqrt(max(a * a - 2 * a * ct + 1, 1e-300))
+    qb = math.sqrt(max(b * b - 2 * b * c1 + 1, 1e-300))
+    cos_i = (a * ct - 1) * inv_qa
+    sin_i = a * st * inv_qa
+    inv_du, inv_dw = inv_qa / radius, 1.0 / (radius * qb)
+    rH, rD = radius * (inv_du + inv_dw), radius * (inv_dw - inv_du)
+    inv_g = 1.0 / (2 + rH * cos_i)
+    inv_qk = 1.0 / (2 * cos_i + rH)
+    b_tn = rD * sin_i * inv_g
+    tx, ty, tz = st * e1x - ct * e2x, st * e1y - ct * e2y, st * e1z - ct * e2z
+    kx, ky, kz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
+    iz = 1.0 / Z
+    xz, yz = X * iz, Y * iz
+    fxz, fyz = fx * iz, fy * iz
+    pt_x, pt_y = tx - xz * tz, ty - yz * tz
+    pk_x, pk_y = kx - xz * kz, ky - yz * kz
+    m_t, m_k = 1 - 2 * inv_g, 1 - 2 * cos_i * inv_qk
+    wx, wy, wz = m_t * tx + b_tn * nx, m_t * ty + b_tn * ny, m_t * tz + b_tn * nz
+    qx_, qy_ = m_k * pk_x, m_k * pk_y
+    u0 = fxz * (1 - pt_x * wx - qx_ * kx)
+    u1 = fxz * -(pt_x * wy + qx_ * ky)
+    u2 = fxz * -(xz + pt_x * wz + qx_ * kz)
+    v0 = fyz * -(pt_y * wx + qy_ * kx)
+    v1 = fyz * (1 - pt_y * wy - qy_ * ky)
+    v2 = fyz * -(yz + pt_y * wz + qy_ * kz)
+    return ((u0 * r00 + u1 * r10 + u2 * r20, u0 * r01 + u1 * r11 + u2 * r21,
+             u0 * r02 + u1 * r12 + u2 * r22),
+            (v0 * r00 + v1 * r10 + v2 * r20, v0 * r01 + v1 * r11 + v2 * r21,
+             v0 * r02 + v1 * r12 + v2 * r22))

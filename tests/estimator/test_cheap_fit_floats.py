@@ -117,3 +117,42 @@ def test_a_fit_that_cannot_be_evaluated_fails_without_raising(setup, calibration
                                           np.zeros(3), 0.0, 0.0, L, np.full((6, 2), 100.0),
                                           50, XTOL_M, GN_STOP_M, np.zeros(3), np.zeros((3, 3)))
     assert not conv and not math.isfinite(cost) and iters == 0
+
+
+def test_the_float_projection_is_the_kernels(setup):  # noqa: F811
+    """Every light's glint, visibility (the cap and the image included) and d glint / d centre
+    for one pose on floats: numpy's projection and Jacobian to ~1e-12 px (as the compiled
+    kernel, tests/estimator/test_cheap_path.py), and the compiled kernel to the last bit where
+    Numba is installed."""
+    from estimator.eye import gaze_direction
+    from estimator.geometry import glint_jacobians
+    from estimator.cornea.scalar import glints_floats, lights_in_camera
+    rng = np.random.default_rng(11)
+    eye, lights = setup.eye, setup.lights.positions_world_m
+    arrays = camera_arrays(setup.camera)
+    cam = camera_floats(*arrays)
+    rq = lights_in_camera(cam, lights)
+    hidden = 0
+    for _ in range(30):
+        a = rng.uniform(-0.45, 0.45, 2)
+        center, axis = eye.cornea_center(*a), gaze_direction(*a)
+        g, vis, jac = glints_floats(cam, [float(v) for v in center], eye.cornea_radius_m, rq,
+                                    [float(v) for v in axis], float(eye.cap_cos_min), True)
+        g, vis, jac = np.array(g), np.array(vis), np.array(jac)
+        ref_g, ref_vis, d_c, _, _ = glint_jacobians(setup.camera, center, eye.cornea_radius_m,
+                                                    lights, cornea_axis=axis,
+                                                    cap_cos_min=eye.cap_cos_min,
+                                                    radius_and_lights=False)
+        assert np.array_equal(vis, ref_vis)
+        hidden += (~vis).sum()
+        assert np.abs(g[vis] - ref_g[vis]).max() < 1e-9
+        assert np.allclose(jac[vis], d_c[vis], rtol=1e-9, atol=1e-6)  # px per m
+        if compiled.ENABLED:
+            out, v2 = np.empty((len(lights), 2)), np.empty(len(lights), dtype=np.bool_)
+            j2 = np.empty((len(lights), 2, 3))
+            compiled.glints_kernel(*arrays, center, eye.cornea_radius_m,
+                                   np.ascontiguousarray(lights), axis, eye.cap_cos_min, True,
+                                   out, v2, True, j2)
+            assert g.tobytes() == out.tobytes() and np.array_equal(vis, v2)
+            assert jac.tobytes() == j2.tobytes()
+    assert hidden > 0  # the cap and the image edge were exercised
