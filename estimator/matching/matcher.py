@@ -112,11 +112,9 @@ class GlintMatcher(HypothesisSearch):
                                                     else calibration.lights_world_m(nominal)))
         #: The camera as the compiled kernels take it (:func:`estimator.geometry.camera_arrays`).
         self.arrays = camera_arrays(setup.camera)
-        # Without Numba one rotation's glints are projected on floats (cornea.scalar): the
-        # camera as floats and each light in camera axes, once.
-        self._floats = None if compiled.ENABLED else (
-            camera_floats(*self.arrays), lights_in_camera(camera_floats(*self.arrays),
-                                                          self.lights_world_m))
+        # Without Numba one rotation's glints are projected on floats (cornea.scalar).
+        cam = camera_floats(*self.arrays)
+        self._floats = None if compiled.ENABLED else (cam, lights_in_camera(cam, self.lights_world_m))
         self.group = np.asarray(setup.lights.group_index)
         self.problem = problem if problem is not None else FitProblem(
             setup.camera, self.lights_world_m, eye.cornea_radius_m, eye.rotation_center_m,
@@ -180,8 +178,12 @@ class GlintMatcher(HypothesisSearch):
                                    axis, eye.cap_cos_min, True, g, vis, False,
                                    compiled.NO_JACOBIAN)
             return g, vis
-        g, vis, _ = self._project_floats(center, axis, False)
-        return g, vis
+        if self._floats is not None:
+            g, vis, _ = self._project_floats(center, axis, False)
+            return g, vis
+        return glints_one_pose(self.setup.camera, center, eye.cornea_radius_m,
+                               self.lights_world_m, cornea_axis=axis,
+                               cap_cos_min=eye.cap_cos_min, arrays=self.arrays)
 
     def _project_floats(self, center, axis, with_jacobian: bool):
         """:meth:`_predict_one`'s glints (n, 2), visibility (n,) and (``with_jacobian``)
