@@ -11,21 +11,24 @@ took 2p more), stopped when a step is
 below 1e-12 m of cornea-centre motion. :func:`fit_cornea` stops at 1e-7 m steps with an error
 left of <= 4e-10 m (``solve._GN_STOP``), so both reach the same centre to ~1e-9 m, 1e-4 of the
 scatter 0.5 px of glint noise leaves (tested against it). Without Numba, :func:`fit_small`
-calls :func:`fit_cornea` on the band's lights.
+runs the same Levenberg-Marquardt on Python floats (:mod:`estimator.cornea.scalar`: numpy's
+per-call cost on arrays of 5-15 glints is what the batched fit paid, ~2 ms a fit), with the
+batched fit's stop: a Gauss-Newton step below 1e-7 m is taken and ends the fit without another
+projection (``solve._GN_STOP``; the error it leaves is <= 4e-10 m), about half the
+projections of the compiled fit's 1e-12 m stop.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
 
 from ..geometry import compiled
-from .fit import fit_cornea
 from .problem import FitProblem
-from .solve import normal_equations
+from .scalar import camera_floats, lm_floats
+from .solve import _GN_STOP
 
 #: Stopping step (m of cornea-centre motion; the orbit's angles count r_co per radian).
 _XTOL_M = 1e-12
@@ -272,15 +275,16 @@ def fit_small(problem: FitProblem, glints_px, lights_world_m, x0, *, model: str,
     if g.shape[0] != L.shape[0] or (2 * g.shape[0] < p and not has_prior) or g.shape[0] < 1:
         raise ValueError(f"need as many glints as lights and >= {p} coordinates (or a prior), "
                          f"got {g.shape[0]} glints and {L.shape[0]} lights")
-    if not compiled.ENABLED:
-        return _fit_numpy(problem, g, L, x0, model, max_iter,
-                          (pm, P) if has_prior else (None, None))
     if model == "orbit":
         ce, rco = problem.eye_center_m, float(problem.orbit_radius_m)
         xtol = _XTOL_M / rco
     else:
         ce, rco, xtol = np.zeros(3), 0.0, _XTOL_M
     R, O, intr, size = compiled.camera_arrays(problem.camera) if arrays is None else arrays
+    if not compiled.ENABLED:
+        return _fit_floats((R, O, intr, size), 1 if model == "orbit" else 0, x0, ce, rco,
+                           problem.cornea_radius_m, L, g, max_iter, xtol,
+                           _GN_STOP / rco if model == "orbit" else _GN_STOP, pm, P)
     x = np.empty(p)
     JtJ = np.zeros((p, p))
     cost, iters, converged = _lm(R, O, intr, size, 1 if model == "orbit" else 0, x0,
@@ -291,15 +295,13 @@ def fit_small(problem: FitProblem, glints_px, lights_world_m, x0, *, model: str,
                     int(iters), ok)
 
 
-def _fit_numpy(problem, g, L, x0, model, max_iter, prior) -> SmallFit:
-    """:func:`fit_small` through :func:`fit_cornea` (no Numba)."""
-    sub = replace(problem, lights_world_m=L)
-    fit = fit_cornea(sub, g[None], None, x0, model=model, max_iter=max_iter,
-                     prior_mean=prior[0], prior_information=prior[1])
-    x = (fit.angles_rad if model == "orbit" else fit.center_m)[0]
-    ok = bool(fit.ok[0] and np.isfinite(x).all())
-    JtJ = np.full((x0.size, x0.size), np.nan)
-    if ok:
-        _, info, _ = normal_equations(model, sub, x[None], g[None], np.ones((1, g.shape[0]), bool))
-        JtJ = info[0]
-    return SmallFit(x.copy(), float(fit.rms_px[0]), JtJ, int(fit.iterations[0]), ok)
+def _fit_floats(arrays, model, x0, ce, rco, radius, L, g, max_iter, xtol, gn_stop, pm,
+                P) -> SmallFit:
+    """:func:`fit_small` without Numba: the same fit on Python floats, with the batched
+    fit's Gauss-Newton stop (:func:`estimator.cornea.scalar.lm_floats`)."""
+    x, JtJ, cost, iters, converged = lm_floats(camera_floats(*arrays), model, x0, ce, rco,
+                                               radius, L, g, max_iter, xtol, gn_stop, pm, P)
+    x, JtJ = np.array(x), np.array(JtJ)
+    ok = bool(converged and np.isfinite(x).all() and math.isfinite(cost))
+    return SmallFit(x, math.sqrt(max(cost, 0.0) / g.shape[0]) if ok else math.nan, JtJ,
+                    int(iters), ok)

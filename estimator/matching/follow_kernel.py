@@ -131,12 +131,13 @@ def _fit(cam, g, lights, assign, x0, ce, rco, radius, xtol, pm, P, x, JtJ):
 
 
 def _final(cam, g, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px, gate_px, group,
-           max_nodes, pred, vis, cand, inside, center, axis, no_jac, assign, dist):
-    """Candidates at ``x`` and the final assignment (gate ``gate_px``, the arcs' order, NaN
-    distances where unmatched) (:meth:`HypothesisSearch._final_assign`); False where the
-    assignment needs the solver."""
+           max_nodes, pred, vis, cand, inside, center, axis, jac, with_jacobian, assign, dist):
+    """Candidates at ``x`` (with ``with_jacobian``, d glint / d centre (n, 2, 3) into
+    ``jac``) and the final assignment (gate ``gate_px``, the arcs' order, NaN distances where
+    unmatched) (:meth:`HypothesisSearch._final_assign`); False where the assignment needs the
+    solver."""
     _candidates(cam, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px, pred, vis,
-                cand, inside, center, axis, no_jac, False)
+                cand, inside, center, axis, jac, with_jacobian)
     if not _assign(g, pred, cand, gate_px, assign, dist, max_nodes):
         return False
     enforce_order(g, pred, assign, group)
@@ -199,9 +200,10 @@ def follow_band(g, lo, hi, prior, weight, R, O, intr, size, rc, offset, radius, 
         x0[0], x0[1] = x[0], x[1]
         for d in range(k):
             prev[d] = assign[d]
+        # With the Jacobian: the rival check's, should this round's assignment be the last.
         if not _final(cam, g, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px,
-                      gate_px, group, max_nodes, pred, vis, cand, inside, center, axis, no_jac,
-                      assign, dist):
+                      gate_px, group, max_nodes, pred, vis, cand, inside, center, axis, jac,
+                      True, assign, dist):
             return (FALLBACK, nan, nan, nan, nan, 0, 0)
         same = True
         for d in range(k):
@@ -232,14 +234,8 @@ def follow_band(g, lo, hi, prior, weight, R, O, intr, size, rc, offset, radius, 
     score = (sq / noise_px ** 2 + (k - matched) * unmatched_cost + missing_cost * missing
              + weight * (d0 * d0 + d1 * d1))
     # The rival check's linearisation: d glint / d (yaw, pitch) through the orbit at x
-    # (BandFollower._rival_margin, GlintMatcher._predict_one_rows).
-    pred_r = np.empty((n, 2))
-    vis_r = np.empty(n, dtype=np.bool_)
-    cand_r = np.empty(n, dtype=np.bool_)
-    inside_r = np.empty(n, dtype=np.bool_)
-    center_r = np.empty(3)
-    _candidates(cam, x, rc, offset, radius, lights, cap, lo, hi, band_margin_px, pred_r, vis_r,
-                cand_r, inside_r, center_r, axis, jac, True)
+    # (BandFollower._rival_margin, GlintMatcher._predict_one_rows), from the last round's
+    # projection at x (the same glints, visibility and Jacobian as projecting x again).
     cp, sp = math.cos(x[1]), math.sin(x[1])
     cy, sy = math.cos(x[0]), math.sin(x[0])
     r = offset
@@ -250,7 +246,7 @@ def follow_band(g, lo, hi, prior, weight, R, O, intr, size, rc, offset, radius, 
             for b in range(2):
                 J[c, a, b] = jac[c, a, 0] * da[0, b] + jac[c, a, 1] * da[1, b] \
                     + jac[c, a, 2] * da[2, b]
-    margin = rival_margin(g, assign, pred_r, J, vis_r, shifted, x, prior, lo, hi, gate_px,
+    margin = rival_margin(g, assign, pred, J, vis, shifted, x, prior, lo, hi, gate_px,
                           band_margin_px, noise_px, unmatched_cost, missing_cost,
                           prior_sigma_rad, weight, score)
     if not margin >= rival_margin_min:

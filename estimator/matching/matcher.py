@@ -55,6 +55,7 @@ import estimator.matching.kernels as kernels
 
 from ..calibration import Calibration
 from ..cornea import FitProblem
+from ..cornea.scalar import camera_floats, glints_floats, lights_in_camera
 from ..eye import fick_angles, gaze_direction
 from ..geometry import camera_arrays, compiled, glints_and_rows_one_pose, glints_one_pose, project_glints
 from ..setup import Setup
@@ -111,6 +112,9 @@ class GlintMatcher(HypothesisSearch):
                                                     else calibration.lights_world_m(nominal)))
         #: The camera as the compiled kernels take it (:func:`estimator.geometry.camera_arrays`).
         self.arrays = camera_arrays(setup.camera)
+        # Without Numba one rotation's glints are projected on floats (cornea.scalar).
+        cam = camera_floats(*self.arrays)
+        self._floats = None if compiled.ENABLED else (cam, lights_in_camera(cam, self.lights_world_m))
         self.group = np.asarray(setup.lights.group_index)
         self.problem = problem if problem is not None else FitProblem(
             setup.camera, self.lights_world_m, eye.cornea_radius_m, eye.rotation_center_m,
@@ -174,9 +178,24 @@ class GlintMatcher(HypothesisSearch):
                                    axis, eye.cap_cos_min, True, g, vis, False,
                                    compiled.NO_JACOBIAN)
             return g, vis
+        if self._floats is not None:
+            g, vis, _ = self._project_floats(center, axis, False)
+            return g, vis
         return glints_one_pose(self.setup.camera, center, eye.cornea_radius_m,
                                self.lights_world_m, cornea_axis=axis,
                                cap_cos_min=eye.cap_cos_min, arrays=self.arrays)
+
+    def _project_floats(self, center, axis, with_jacobian: bool):
+        """:meth:`_predict_one`'s glints (n, 2), visibility (n,) and (``with_jacobian``)
+        d glint / d centre (n, 2, 3) without Numba: the compiled kernel's arithmetic on Python
+        floats (:func:`estimator.cornea.scalar.glints_floats`; numpy's projection of one pose,
+        :func:`estimator.geometry.glints_one_pose`, costs ~0.3 ms in per-call overhead)."""
+        cam, rq = self._floats
+        g, vis, jac = glints_floats(cam, [float(v) for v in center], self.eye.cornea_radius_m,
+                                    rq, [float(v) for v in axis], float(self.eye.cap_cos_min),
+                                    with_jacobian)
+        return (np.array(g).reshape(-1, 2), np.array(vis, dtype=bool),
+                np.array(jac).reshape(-1, 2, 3) if with_jacobian else None)
 
     def _orbit_pose(self, yaw: float, pitch: float):
         """Cornea centre (3,) and optical axis (3,) of one rotation on the orbit
@@ -191,9 +210,12 @@ class GlintMatcher(HypothesisSearch):
         eye = self.eye
         center, axis = self._orbit_pose(yaw, pitch)
         cp, sp, cy, sy = math.cos(pitch), math.sin(pitch), math.cos(yaw), math.sin(yaw)
-        g, vis, d_center = glints_and_rows_one_pose(
-            self.setup.camera, center, eye.cornea_radius_m, self.lights_world_m,
-            cornea_axis=axis, cap_cos_min=eye.cap_cos_min, arrays=self.arrays)
+        if self._floats is not None:
+            g, vis, d_center = self._project_floats(center, axis, True)
+        else:
+            g, vis, d_center = glints_and_rows_one_pose(
+                self.setup.camera, center, eye.cornea_radius_m, self.lights_world_m,
+                cornea_axis=axis, cap_cos_min=eye.cap_cos_min, arrays=self.arrays)
         r = eye.cornea_offset_m
         d_angles = np.array([[r * cp * cy, -r * sp * sy], [0.0, r * cp], [r * cp * sy, r * sp * cy]])
         return g, vis, d_center @ d_angles

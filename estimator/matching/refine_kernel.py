@@ -131,7 +131,7 @@ def refine_prior(g, lo, hi, X0, first, has_first, first_gate, R, O, intr, size, 
             continue
         if not _final(cam, g, X[h], rc, offset, radius, lights, cap, lo, hi, band_margin_px,
                       gate_px, group, max_nodes, pred_out[h], vis, cand_out[h], inside[h],
-                      center, axis, no_jac, assign_out[h], dist_out[h]):
+                      center, axis, no_jac, False, assign_out[h], dist_out[h]):
             return FALLBACK
         any_match = False
         changed = not has_prev[h]
@@ -146,8 +146,8 @@ def refine_prior(g, lo, hi, X0, first, has_first, first_gate, R, O, intr, size, 
             ok[h] = fitted
             if not _final(cam, g, X[h], rc, offset, radius, lights, cap, lo, hi,
                           band_margin_px, gate_px, group, max_nodes, pred_out[h], vis,
-                          cand_out[h], inside[h], center, axis, no_jac, assign_out[h],
-                          dist_out[h]):
+                          cand_out[h], inside[h], center, axis, no_jac, False,
+                          assign_out[h], dist_out[h]):
                 return FALLBACK
         detected = np.zeros(n, dtype=np.bool_)
         sq = 0.0

@@ -16,6 +16,7 @@ import estimator.matching.kernels as match_kernels
 
 from ..calibration import Calibration, GazeMapping
 from ..gaze import CalibratedProblems, geometric_gaze, polynomial_gaze
+from ..geometry import compiled
 from ..matching import BandFollower, GlintMatcher
 from ..reasons import Reason
 from ..setup import Setup
@@ -87,11 +88,16 @@ class BandContext:
 
     @property
     def fast_fits(self) -> bool:
-        """Whether identified glints are fitted by the compiled small fit first
-        (:mod:`estimator.tracking.estimates`): the cheap path, the matcher's compiled steps
-        (:data:`estimator.matching.kernels.ENABLED`, read now), a spherical cornea and point lights
-        (a ``"wire_mirror"`` calibration's virtual sources take the batched fits)."""
-        return (self.follower is not None and match_kernels.ENABLED and not self.calibration.conic
+        """Whether identified glints are fitted by the small fit first
+        (:mod:`estimator.tracking.estimates`): the cheap path, a spherical cornea and point
+        lights (a ``"wire_mirror"`` calibration's virtual sources take the batched fits), and
+        either the matcher's compiled steps (:data:`estimator.matching.kernels.ENABLED`, read
+        now) or no Numba at all (:data:`estimator.geometry.compiled.ENABLED` off: the small
+        fit's float form, :mod:`estimator.cornea.scalar`, ~0.3 ms where the batched fit of one
+        band costs ~2 ms; measured on 60 synthetic frames: 534 -> 592 samples/s polynomial,
+        576 -> 635 geometric, the same samples to 3e-11 m on the screen)."""
+        return (self.follower is not None and (match_kernels.ENABLED or not compiled.ENABLED)
+                and not self.calibration.conic
                 and self.calibration.light_model == "points")
 
     @property
