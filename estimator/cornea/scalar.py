@@ -28,64 +28,9 @@ from __future__ import annotations
 
 import math
 
+from ..geometry.compiled import reflection_root as _root
+
 __all__ = ["camera_floats", "lights_in_camera", "lm_floats", "glints_floats"]
-
-#: Newton's stopping step and iteration cap of the bracketed root (as the compiled module's).
-_STEP_STOP_RAD = 1e-8
-_MAX_NEWTON_ITER = 60
-
-
-def _condition(a, b, ab, cp, sp, ct, st):
-    """F(θ), F'(θ) of (R) from the cosines and sines of θ and φ
-    (``roots._reflection_condition_unit``; :mod:`estimator.geometry.compiled`'s, line for
-    line, which keeps it behind Numba's dispatcher where its JIT is on)."""
-    s1 = sp * ct - cp * st
-    c1 = cp * ct + sp * st
-    s2 = s1 * ct - c1 * st
-    c2 = c1 * ct + s1 * st
-    return ab * s2 + a * st - b * s1, a * ct + b * c1 - 2 * ab * c2
-
-
-def _root(a, b, cp, sp):
-    """(cos θ, sin θ) of the bracketed root of (R) for one (pose, light) pair (the compiled
-    module's, line for line)."""
-    ch = math.sqrt(max(0.5 * (1 + cp), 0.0))
-    sh = math.sqrt(max(0.5 * (1 - cp), 0.0))
-    den = 2 * a * b - (a + b) * ch
-    d = (a - b) * sh / den if den != 0.0 else 0.0
-    if not abs(d) < 1.0:
-        d = 0.0
-    q = 1.0 / math.sqrt(1.0 + d * d)
-    ct, st = (ch - d * sh) * q, (sh + d * ch) * q
-    ab = a * b
-    step = math.inf
-    for _ in range(2):
-        f, df = _condition(a, b, ab, cp, sp, ct, st)
-        step = f / df if df != 0.0 else math.nan
-        q = 1.0 / math.sqrt(1.0 + step * step)
-        ct, st = (ct + step * st) * q, (st - step * ct) * q
-    if abs(step) < _STEP_STOP_RAD and st >= 0 and sp * ct - cp * st >= -1e-15:
-        return ct, st
-    # Near-grazing pair: safeguarded Newton on [0, φ] (roots._bracketed_root).
-    p = math.atan2(sp, cp)
-    theta = math.atan2(st, ct)
-    theta = min(max(theta, 0.0), p) if math.isfinite(theta) else 0.5 * p
-    lo, hi = 0.0, p
-    for _ in range(_MAX_NEWTON_ITER):
-        f, df = _condition(a, b, ab, cp, sp, math.cos(theta), math.sin(theta))
-        if f > 0:
-            lo = theta
-        else:
-            hi = theta
-        step = f / df if df != 0.0 else math.nan
-        new = theta - step
-        bad = not (lo <= new <= hi)
-        if bad:
-            new = 0.5 * (lo + hi)
-        theta = new
-        if not bad and abs(step) < _STEP_STOP_RAD:
-            break
-    return math.cos(theta), math.sin(theta)
 
 
 def camera_floats(R, O, intr, size) -> tuple:

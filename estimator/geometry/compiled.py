@@ -186,6 +186,11 @@ if ENABLED:
     _jacobian_rows = _jit(_jacobian_rows)
     glints_kernel = _jit(glints_kernel)
 
+#: (cos θ, sin θ) of one (pose, light) pair's root of the reflection condition, for callers
+#: outside this package: :mod:`estimator.cornea.scalar`'s float fit runs where the JIT is off,
+#: and takes this plain-Python form (the same lines as the compiled kernels').
+reflection_root = _root
+
 
 def camera_arrays(camera: Camera):
     """The camera as the kernels take it: rotation (3, 3), centre (3,), intrinsics (4,) and
