@@ -61,6 +61,25 @@ def _centre(model, x, ce, rco):
             ce[2] + rco * (-cp * math.cos(x[0])))
 
 
+def _plane(lx, ly, lz, e1x, e1y, e1z):
+    """The plane of reflection of one light (offset ``l`` from the centre, camera frame) and
+    the unit ``e1`` toward the camera: l along e1 and normal to it, |l|, 1 / |l| (1 where
+    l = 0) and the unit e2 normal to e1 in the plane (the compiled kernel's operations)."""
+    l_par = lx * e1x + ly * e1y + lz * e1z
+    px, py, pz = lx - l_par * e1x, ly - l_par * e1y, lz - l_par * e1z
+    l_perp = math.sqrt(px * px + py * py + pz * pz)
+    l_norm = math.sqrt(l_par * l_par + l_perp * l_perp)
+    inv_n = 1.0 / l_norm if l_norm > 0 else 1.0
+    if l_perp <= 1e-12 * l_norm:  # light on the camera-centre line: any plane through it
+        gx, gy, gz = e1y, -e1x, 0.0
+        if math.sqrt(gx * gx + gy * gy) <= 1e-6:
+            gx, gy, gz = 0.0, e1z, -e1y
+        fn = math.sqrt(gx * gx + gy * gy + gz * gz)
+        return l_par, l_perp, l_norm, inv_n, gx / fn, gy / fn, gz / fn
+    inv = 1.0 / l_perp
+    return l_par, l_perp, l_norm, inv_n, px * inv, py * inv, pz * inv
+
+
 def _evaluate(cam, model, x, ce, rco, radius, rq, glints):
     """The glints' squared residual at x (px²), JᵀJ (p lists of p) and Jᵀr (p) of their
     residuals r and Jacobian J = d r / d x: ``_residuals_rows`` and ``_normal_sums`` of
@@ -83,20 +102,7 @@ def _evaluate(cam, model, x, ce, rco, radius, rq, glints):
     cost = t0 = t1 = t2 = a00 = a01 = a02 = a11 = a12 = a22 = 0.0
     for i, (qx, qy, qz) in enumerate(rq):
         lx, ly, lz = qx - cx, qy - cy, qz - cz
-        l_par = lx * e1x + ly * e1y + lz * e1z
-        px, py, pz = lx - l_par * e1x, ly - l_par * e1y, lz - l_par * e1z
-        l_perp = math.sqrt(px * px + py * py + pz * pz)
-        l_norm = math.sqrt(l_par * l_par + l_perp * l_perp)
-        inv_n = 1.0 / l_norm if l_norm > 0 else 1.0
-        if l_perp <= 1e-12 * l_norm:  # light on the camera-centre line: any plane through it
-            gx, gy, gz = e1y, -e1x, 0.0
-            if math.sqrt(gx * gx + gy * gy) <= 1e-6:
-                gx, gy, gz = 0.0, e1z, -e1y
-            fn = math.sqrt(gx * gx + gy * gy + gz * gz)
-            e2x, e2y, e2z = gx / fn, gy / fn, gz / fn
-        else:
-            inv = 1.0 / l_perp
-            e2x, e2y, e2z = px * inv, py * inv, pz * inv
+        l_par, l_perp, l_norm, inv_n, e2x, e2y, e2z = _plane(lx, ly, lz, e1x, e1y, e1z)
         alpha, beta = o_norm / radius, l_norm / radius
         cp, sp = l_par * inv_n, l_perp * inv_n
         a, b = (alpha, beta) if alpha > 1 and beta > 1 else (2.0, 2.0)
@@ -112,36 +118,8 @@ def _evaluate(cam, model, x, ce, rco, radius, rq, glints):
             u = v = math.nan
         du, dv = u - glints[i][0], v - glints[i][1]
         cost += du * du + dv * dv
-        # d glint / d centre (compiled._jacobian_rows).
-        inv_qa = 1.0 / math.sqrt(max(a * a - 2 * a * ct + 1, 1e-300))
-        qb = math.sqrt(max(b * b - 2 * b * c1 + 1, 1e-300))
-        cos_i = (a * ct - 1) * inv_qa
-        sin_i = a * st * inv_qa
-        inv_du, inv_dw = inv_qa / radius, 1.0 / (radius * qb)
-        rH, rD = radius * (inv_du + inv_dw), radius * (inv_dw - inv_du)
-        inv_g = 1.0 / (2 + rH * cos_i)
-        inv_qk = 1.0 / (2 * cos_i + rH)
-        b_tn = rD * sin_i * inv_g
-        tx, ty, tz = st * e1x - ct * e2x, st * e1y - ct * e2y, st * e1z - ct * e2z
-        kx, ky, kz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-        iz = 1.0 / Z
-        xz, yz = X * iz, Y * iz
-        fxz, fyz = fx * iz, fy * iz
-        pt_x, pt_y = tx - xz * tz, ty - yz * tz
-        pk_x, pk_y = kx - xz * kz, ky - yz * kz
-        m_t, m_k = 1 - 2 * inv_g, 1 - 2 * cos_i * inv_qk
-        wx, wy, wz = m_t * tx + b_tn * nx, m_t * ty + b_tn * ny, m_t * tz + b_tn * nz
-        qx_, qy_ = m_k * pk_x, m_k * pk_y
-        u0 = fxz * (1 - pt_x * wx - qx_ * kx)
-        u1 = fxz * -(pt_x * wy + qx_ * ky)
-        u2 = fxz * -(xz + pt_x * wz + qx_ * kz)
-        v0 = fyz * -(pt_y * wx + qy_ * kx)
-        v1 = fyz * (1 - pt_y * wy - qy_ * ky)
-        v2 = fyz * -(yz + pt_y * wz + qy_ * kz)
-        ju0, ju1, ju2 = u0 * r00 + u1 * r10 + u2 * r20, u0 * r01 + u1 * r11 + u2 * r21, \
-            u0 * r02 + u1 * r12 + u2 * r22
-        jv0, jv1, jv2 = v0 * r00 + v1 * r10 + v2 * r20, v0 * r01 + v1 * r11 + v2 * r21, \
-            v0 * r02 + v1 * r12 + v2 * r22
+        (ju0, ju1, ju2), (jv0, jv1, jv2) = _jacobian_rows(
+            cam, radius, a, b, ct, st, c1, e1x, e1y, e1z, e2x, e2y, e2z, nx, ny, nz, X, Y, Z)
         if model == 0:
             j0, j1, j2 = ju0, ju1, ju2
             k0, k1, k2 = jv0, jv1, jv2
@@ -357,20 +335,7 @@ def glints_floats(cam, center, radius, rq, axis, cap_cos_min, with_jacobian):
     u_hi, v_hi = w - 0.5, h - 0.5
     for qx, qy, qz in rq:
         lx, ly, lz = qx - cx, qy - cy, qz - cz
-        l_par = lx * e1x + ly * e1y + lz * e1z
-        px, py, pz = lx - l_par * e1x, ly - l_par * e1y, lz - l_par * e1z
-        l_perp = math.sqrt(px * px + py * py + pz * pz)
-        l_norm = math.sqrt(l_par * l_par + l_perp * l_perp)
-        inv_n = 1.0 / l_norm if l_norm > 0 else 1.0
-        if l_perp <= 1e-12 * l_norm:  # light on the camera-centre line: any plane through it
-            gx, gy, gz = e1y, -e1x, 0.0
-            if math.sqrt(gx * gx + gy * gy) <= 1e-6:
-                gx, gy, gz = 0.0, e1z, -e1y
-            fn = math.sqrt(gx * gx + gy * gy + gz * gz)
-            e2x, e2y, e2z = gx / fn, gy / fn, gz / fn
-        else:
-            inv = 1.0 / l_perp
-            e2x, e2y, e2z = px * inv, py * inv, pz * inv
+        l_par, l_perp, l_norm, inv_n, e2x, e2y, e2z = _plane(lx, ly, lz, e1x, e1y, e1z)
         alpha, beta = o_norm / radius, l_norm / radius
         cp, sp = l_par * inv_n, l_perp * inv_n
         outside = alpha > 1 and beta > 1
