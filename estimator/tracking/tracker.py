@@ -40,6 +40,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from ..banding import band_rows, strobe_instant
 from ..calibration import Calibration
 from ..gaze import calibrated_problems
 from ..glints import NO_BAND, DetectionParams, GlintDetector
@@ -50,7 +51,6 @@ from ..setup import Setup
 from .bands import band_sample
 from .context import METHODS, MIN_GLINTS, BandContext
 from .cut_glints import flagged, kept_detections
-from .frame_bands import FrameBands
 from .samples import BandPrior, GazeSample, failed_sample
 from .state import StreamState
 
@@ -168,8 +168,6 @@ class Tracker:
         self.context = BandContext(setup, calibration, method, mapping, gaze_map, problems,
                                    matcher, follower, prior).with_kernel()
         self.counts = {"cheap": 0, "search": 0, "unfillable": 0, "again": 0}
-        #: Each frame's bands and strobe instants, computed once per strobe phase.
-        self.frame_bands = FrameBands(setup.sensor, setup.strobe)
         #: The last frame index taken (a frame not after it is ``frame_out_of_order``).
         self.last_frame_index: int | None = None
         self.reset()
@@ -211,7 +209,11 @@ class Tracker:
         list of GazeSample, in strobe order.
         """
         frame_index = int(frame_index)
-        bands, times = self.frame_bands(frame_index, frame_start_s)
+        sensor, strobe = self.setup.sensor, self.setup.strobe
+        shift = 0.0 if frame_start_s is None else float(frame_start_s) - frame_index * sensor.frame_period_s
+        pulses, starts, first, last = band_rows(sensor, strobe, frame_index)
+        bands = [(int(j), (int(a), int(b))) for j, a, b in zip(pulses, first, last)]
+        times = (strobe_instant(starts, strobe.pulse_s) + shift).tolist()
         if self.last_frame_index is not None and frame_index <= self.last_frame_index:
             # The stream's state is the newer frame's: an older one cannot be followed from
             # it (its bands would precede the prior), nor may it undo it.
