@@ -368,15 +368,41 @@ def cli_conditions(rows) -> list:
     return out
 
 
+def sample_reasons(folder: Path, frames: int) -> list:
+    """The ``reason`` column of the tracked rendered samples CSV, in its row order (the order
+    of :func:`estimator.events.gaze_from_samples_csv`'s samples)."""
+    from estimator.tracking import read_samples_csv
+
+    return [r["reason"] for r in read_samples_csv(Path(folder) / f"samples_{frames}.csv")]
+
+
 def invalid_reasons(folder: Path, frames: int) -> list:
-    """(reason, count) of the tracked rendered samples that are not ``ok``, most first (the
-    ``reason`` column of the samples CSV)."""
-    import csv
+    """(reason, count) of the tracked rendered samples that are not ``ok``, most first."""
     from collections import Counter
 
-    with open(Path(folder) / f"samples_{frames}.csv", newline="") as f:
-        rows = csv.DictReader(line for line in f if not line.startswith("#"))
-        return Counter(r["reason"] for r in rows if r["reason"] != "ok").most_common()
+    return Counter(r for r in sample_reasons(folder, frames) if r != "ok").most_common()
+
+
+def band_agreement(t, ok_rendered, ts, ok_simulated, reasons) -> dict:
+    """Band by band, the rendered samples' validity (``ok_rendered`` at instants ``t``, with
+    the tracker's ``reasons``) against the simulator's at the same instants (``ts``,
+    ``ok_simulated``; an instant is the same within 1 us): the counts of the four cases and,
+    for the bands valid only in the simulation, the tracker's reasons, most first."""
+    from collections import Counter
+
+    t, ts = np.asarray(t, dtype=float), np.asarray(ts, dtype=float)
+    j = np.clip(np.searchsorted(ts, t), 1, max(ts.size - 1, 1))
+    j = np.where(np.abs(ts[j - 1] - t) < np.abs(ts[j] - t), j - 1, j) if ts.size > 1 else \
+        np.zeros(t.size, dtype=int)
+    same = np.abs(ts[j] - t) < 1e-6
+    sim = np.zeros(t.size, dtype=bool)
+    sim[same] = np.asarray(ok_simulated, dtype=bool)[j[same]]
+    ren = np.asarray(ok_rendered, dtype=bool)
+    only_sim = same & sim & ~ren
+    return {"bands": int(same.sum()), "both": int((same & sim & ren).sum()),
+            "rendered only": int((same & ren & ~sim).sum()), "simulated only": int(only_sim.sum()),
+            "neither": int((same & ~sim & ~ren).sum()),
+            "simulated only, reasons": Counter(reasons[i] for i in np.flatnonzero(only_sim)).most_common()}
 
 
 #: A rendered sample further than this many noise SDs from the truth is an outlier (a
@@ -412,8 +438,12 @@ def rendered_comparison(scene, out_dir: Path, seed: int, *, render: bool):
     rng = np.random.default_rng(np.random.SeedSequence([seed, 342]))
     pm = truth_pos + rng.normal(0.0, sd_rendered, truth_pos.shape)
     pm[~ok] = np.nan
+    reasons = sample_reasons(out_dir / "designed", frames)
+    if len(reasons) != t.size:
+        raise ValueError(f"{out_dir / 'designed'}: {len(reasons)} reasons for {t.size} samples")
     out = {"frames": frames, "planned": planned, "noise_sd_deg": sd_rendered, "rms_deg": rms,
            "reasons": invalid_reasons(out_dir / "designed", frames),
+           "agreement": band_agreement(t, ok, ts, np.isfinite(ps).all(axis=1), reasons),
            "outliers": outliers,
            "valid_rendered": float(ok.mean()), "valid_simulated": float(np.isfinite(ps).all(axis=1).mean())}
     for det in DETECTORS:

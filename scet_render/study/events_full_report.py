@@ -122,6 +122,23 @@ def rendered_table(rendered) -> str:
     return out
 
 
+def agreement_text(rendered) -> str:
+    """Band by band, which bands the renders and the simulator's rule call valid
+    (:func:`scet_render.study.events_full.band_agreement`)."""
+    a = None if rendered is None else rendered.get("agreement")
+    if not a or not a["bands"]:
+        return ""
+    n = a["bands"]
+    why = ", ".join(f"{k} {v}" for k, v in a["simulated only, reasons"][:6])
+    return ("Band by band (the same instants):\n\n| | simulated valid | simulated invalid |\n"
+            "|---|---|---|\n"
+            f"| rendered valid | {a['both']} ({100 * a['both'] / n:.1f} %) | "
+            f"{a['rendered only']} ({100 * a['rendered only'] / n:.1f} %) |\n"
+            f"| rendered invalid | {a['simulated only']} ({100 * a['simulated only'] / n:.1f} %) | "
+            f"{a['neither']} ({100 * a['neither'] / n:.1f} %) |\n\n"
+            f"The tracker's reasons for the bands valid only in the simulation: {why}.\n")
+
+
 def _overlap(a, b) -> bool:
     return not (a[2] < b[1] or b[2] < a[1])
 
@@ -438,6 +455,7 @@ interval after a reported one taken as its continuation. Latency over the matche
 
 {rend_head}
 
+{agreement_text(rendered)}
 {rendered_table(rendered)}
 {rendered_verdict(rendered)}
 {"![rendered and simulated](figures/events_rendered.png)" if rendered is not None else ""}

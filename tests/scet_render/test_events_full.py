@@ -164,3 +164,32 @@ def test_a_screen_too_small_for_the_saccades_is_an_error(designed):
                                             y_range_m=(-0.05, 0.05)))
     with pytest.raises(ValueError, match="paper_sim_designed: no direction keeps a"):
         study_trajectory(tiny, 20, 0, seed=0)
+
+
+def test_band_agreement_counts_each_band_once_by_its_instant():
+    """The rendered and simulated validity are compared at the same instants (within 1 us),
+    a rendered instant the simulation lacks is left out, and the bands valid only in the
+    simulation carry the tracker's reasons."""
+    from scet_render.study.events_full import band_agreement
+
+    t = np.array([0.0010, 0.0020, 0.0030, 0.0040, 0.0050, 0.0061])
+    ok_r = np.array([True, False, True, False, False, True])
+    ts = np.array([0.0000, 0.0010 + 2e-7, 0.0020, 0.0030, 0.0040, 0.0050])  # no 6.1 ms
+    ok_s = np.array([True, True, True, False, True, False])
+    reasons = ["ok", "match_ambiguous", "ok", "band_out_of_reach", "match_ambiguous", "ok"]
+    a = band_agreement(t, ok_r, ts, ok_s, reasons)
+    assert a["bands"] == 5
+    assert (a["both"], a["rendered only"], a["simulated only"], a["neither"]) == (1, 1, 2, 1)
+    assert a["simulated only, reasons"] == [("match_ambiguous", 1), ("band_out_of_reach", 1)]
+
+
+def test_agreement_text_gives_the_four_cases_as_shares_of_the_bands():
+    from scet_render.study.events_full_report import agreement_text
+
+    a = {"bands": 200, "both": 150, "rendered only": 10, "simulated only": 30, "neither": 10,
+         "simulated only, reasons": [("match_ambiguous", 20), ("band_out_of_reach", 10)]}
+    text = agreement_text({"agreement": a})
+    assert "| rendered valid | 150 (75.0 %) | 10 (5.0 %) |" in text
+    assert "| rendered invalid | 30 (15.0 %) | 10 (5.0 %) |" in text
+    assert "match_ambiguous 20, band_out_of_reach 10" in text
+    assert agreement_text(None) == "" and agreement_text({"agreement": None}) == ""
