@@ -133,8 +133,8 @@ class BandFollower:
         # Without Numba each round's projection at x carries the rival check's Jacobian
         # (glints_floats gives the same glints and visibility with or without it): the band
         # does not know which round is its last until the assignment repeats, and the rival
-        # check then projects x no more (one round on each of the 301 cheap bands of the
-        # benchmark's 60 synthetic frames: no Jacobian computed in vain there).
+        # check then projects x no more (one round in each of the 301 follow calls that
+        # reached a fit on the benchmark's 60 synthetic frames: no Jacobian computed in vain).
         rows_at_x = None
         for _ in range(MAX_ROUNDS):
             used = assign >= 0

@@ -184,8 +184,8 @@ def compiled_cheap_sample(context: BandContext, state: StreamState, f: int, j: i
     _, rms, glints, lights, conf, x, center, cov, xy, fit_x = got
     if context.implausible(state, time_s, x):
         return None
-    # The kernel's arrays are this band's own: the sample takes them as they are
-    # (estimated_sample's copies, without copying), the state a copy of the fit's start.
+    # The kernel's arrays are this band's own: the sample takes them without
+    # estimated_sample's copies; the state takes a copy of the fit's start.
     if context.kernel.polynomial:
         center = fit_x
         after = state.estimated(time_s, x, cov, prior_angles_rad=x, start=fit_x.copy())
