@@ -18,11 +18,12 @@ from .params import (
     TWO_PULSES,
     DetectionParams,
     GlintDetections,
+    undistort_points_px,
 )
 from .sequence import GlintDetector, window_margin_px
 
 __all__ = [
     "detect_glints", "SATURATED", "CUT_BY_BAND_EDGE", "TWO_PULSES", "IMAGE_EDGE", "NO_BAND",
     "BLENDED", "FLAG_NAMES", "DetectionParams", "GlintDetections", "GlintDetector",
-    "window_margin_px"
+    "window_margin_px", "undistort_points_px"
 ]

@@ -130,6 +130,12 @@ class BandFollower:
         pred, cand, _ = self._candidates(prior, lo, hi)
         assign, _ = m._assign(g, pred, cand, p.prior_gate_px)
         x, fit, prev = prior, None, None
+        # Without Numba each round's projection at x carries the rival check's Jacobian
+        # (glints_floats gives the same glints and visibility with or without it): the band
+        # does not know which round is its last until the assignment repeats, and the rival
+        # check then projects x no more (one round in each of the 301 follow calls that
+        # reached a fit on the benchmark's 60 synthetic frames: no Jacobian computed in vain).
+        rows_at_x = None
         for _ in range(MAX_ROUNDS):
             used = assign >= 0
             if used.sum() < fp.min_matches:
@@ -139,7 +145,11 @@ class BandFollower:
             if not fit.ok:
                 return None
             x, prev = fit.x, assign
-            pred, cand, inside = self._candidates(x, lo, hi)
+            if m._floats is not None:
+                rows_at_x = m._predict_one_rows(float(x[0]), float(x[1]))
+                pred, cand, inside = self._candidates(x, lo, hi, rows_at_x[:2])
+            else:
+                pred, cand, inside = self._candidates(x, lo, hi)
             assign, dist = m._final_assign(g, pred, cand)
             if np.array_equal(assign, prev):
                 break
@@ -153,7 +163,7 @@ class BandFollower:
             return None
         weight = 1.0 if prior_term else 0.0
         score = self._score(g, assign, dist, inside, x, prior, weight)
-        margin = self._rival_margin(g, assign, x, prior, lo, hi, score, weight)
+        margin = self._rival_margin(g, assign, x, prior, lo, hi, score, weight, rows_at_x)
         if not margin >= fp.rival_margin:
             return None
         h = _Hypothesis(x.copy(), assign, dist, pred, cand, score, fit.iterations, True)
@@ -175,9 +185,10 @@ class BandFollower:
         match = GlintMatch(assign, conf, dist, center, x, rms, score, margin, int(iters), OK)
         return Followed(match, fit)
 
-    def _candidates(self, angles, lo, hi):
-        """Predicted glints (n, 2), candidates and glints well inside the band (n,)."""
-        pred, vis = self.predict(angles)
+    def _candidates(self, angles, lo, hi, predicted=None):
+        """Predicted glints (n, 2), candidates and glints well inside the band (n,); from
+        ``predicted`` (glints (n, 2), visibility (n,) at ``angles``) where given."""
+        pred, vis = self.predict(angles) if predicted is None else predicted
         v = pred[:, 1]
         b = self.matcher.params.band_margin_px
         return pred, vis & (v >= lo - b) & (v <= hi + b), vis & (v >= lo + b) & (v <= hi - b)
@@ -194,12 +205,15 @@ class BandFollower:
                      + (~matched).sum() * p.unmatched_cost
                      + p.missing_cost * (inside & ~detected).sum() + weight * (d @ d))
 
-    def _rival_margin(self, g, assign, x, prior, lo, hi, score, weight) -> float:
+    def _rival_margin(self, g, assign, x, prior, lo, hi, score, weight, rows=None) -> float:
         """Smallest score lead over the chains shifted by ±1, ±2 lights, each refitted to
         first order about x (linearised glints pred + J δ, the four rivals at once); inf
-        without a rival, -inf where the linearisation cannot place one (the search decides)."""
+        without a rival, -inf where the linearisation cannot place one (the search decides).
+        ``rows``: :meth:`GlintMatcher._predict_one_rows` at x where the caller has it."""
         m, p = self.matcher, self.matcher.params
-        pred, vis, J = m._predict_one_rows(float(x[0]), float(x[1]))  # J (n, 2, 2) px / rad
+        if rows is None:
+            rows = m._predict_one_rows(float(x[0]), float(x[1]))
+        pred, vis, J = rows  # J (n, 2, 2) px / rad
         if kernels.ENABLED:
             return kernels.rival_margin(g, assign, pred, J, vis, self._shifted, x, prior, lo, hi,
                                         p.gate_px, p.band_margin_px, p.noise_px,

@@ -177,20 +177,18 @@ def compiled_cheap_sample(context: BandContext, state: StreamState, f: int, j: i
     retry = None
     if not fresh and state.velocity_rad_s is not None:
         retry = state.last.angles_rad  # the second try (cheap_sample's comment)
-    outcome, rms, assign, conf, x, center, JtJ, xy, fit_x = context.kernel(
-        np.ascontiguousarray(g, dtype=np.float64), rows, prior, fresh, retry, state.start)
-    if outcome != ACCEPTED:
-        return FALLBACK if outcome == FALLBACK else None
+    got = context.kernel(np.ascontiguousarray(g, dtype=np.float64), rows, prior, fresh, retry,
+                         state.start)
+    if got[0] != ACCEPTED:
+        return FALLBACK if got[0] == FALLBACK else None
+    _, rms, glints, lights, conf, x, center, cov, xy, fit_x = got
     if context.implausible(state, time_s, x):
         return None
-    used = assign >= 0
-    inv = inverse_2x2(JtJ)
-    cov = context.prior.noise_px ** 2 * inv if inv is not None else np.full((2, 2), np.inf)
+    # The kernel's arrays are this band's own: the sample takes them without
+    # estimated_sample's copies; the state takes a copy of the fit's start.
     if context.kernel.polynomial:
-        center, resume = fit_x, fit_x
+        center = fit_x
+        after = state.estimated(time_s, x, cov, prior_angles_rad=x, start=fit_x.copy())
     else:
-        resume = x.copy()
-    after = state.estimated(time_s, x, cov, prior_angles_rad=x, start=resume.copy())
-    return estimated_sample(f, j, time_s, screen_xy_m=xy, cornea_center_m=center,
-                            glints_px=g[used], light_index=assign[used], residual_px=rms,
-                            confidence=conf[used]), after
+        after = state.estimated(time_s, x, cov, prior_angles_rad=x, start=x.copy())
+    return GazeSample(f, j, time_s, xy, center, glints, lights, rms, Reason.OK, conf), after

@@ -19,8 +19,12 @@ mapping of the centre (:meth:`estimator.calibration.GazeMapping.predict_one`'s t
 sums in the same order, each power as CPython's ``float ** int``: C ``pow`` on the magnitude,
 the sign put back for odd powers) or the optical axis' screen point
 (:meth:`~estimator.tracking.BandContext.gaze_point`'s scalar arithmetic), and the residual
-and finiteness tests. The plausibility check against the last sample, the covariance and the
-sample stay in Python (they need the stream's state), so every sample is the Python form's
+and finiteness tests, then what the sample takes: the matched detections, lights and
+confidences gathered in detection order, and the angles' covariance σ² (JᵀJ)⁻¹
+(:func:`inverse_scaled`, :func:`~estimator.tracking.inverse_2x2`'s arithmetic; issue 31's
+fourth pass: ~17 us of small numpy calls a cheap band before). The plausibility check
+against the last sample, the state and the sample object stay in Python (they need the
+stream's state), so every sample is the Python form's
 bit for bit (``tests/estimator/test_tracking_kernel.py``, and ``benchmarks/bench_tracker.py``
 on whole streams). Where the follow step needs the Python form (an assignment past the
 compiled solver's node limit: :data:`FALLBACK`) or Numba is not installed, the tracker runs
@@ -40,8 +44,8 @@ from ..cornea.small import XTOL_M, lm_kernel
 from ..geometry import compiled
 from ..matching.follow import MAX_ROUNDS
 
-__all__ = ["CheapBand", "cheap_band", "mapped_point", "ENABLED", "DECLINED", "ACCEPTED",
-           "FALLBACK"]
+__all__ = ["CheapBand", "cheap_band", "mapped_point", "inverse_scaled", "ENABLED", "DECLINED",
+           "ACCEPTED", "FALLBACK"]
 
 #: Whether :func:`cheap_band` runs compiled (the follow kernel does).
 ENABLED = follow_kernel.ENABLED
@@ -104,8 +108,8 @@ def axis_point(angles, eye_center, screen_z, out):
 def cheap_band(g, lo, hi, prior, weight, retry, R, O, intr, size, rc, offset, radius, lights,
                cap, ce, rco, fit_radius, xtol, group, shifted, fp, ip, polynomial, start,
                center_lights, center_radius, map_offset, map_scale, map_exponents,
-               map_coefficients, eye_center, screen_z, max_residual_px, assign, dist, conf, x,
-               center, JtJ, xy, fit_x):
+               map_coefficients, eye_center, screen_z, max_residual_px, noise2, glints, light,
+               conf, x, center, cov, xy, fit_x):
     """The cheap path's identification and estimate of detections ``g`` (k, 2) in rows
     [lo, hi] from ``prior`` (2,) rad (``weight`` 1 with the prior's term, 0 without); where
     that declines and ``retry`` (2,) is finite, again from ``retry`` without the prior's term.
@@ -116,14 +120,64 @@ def cheap_band(g, lo, hi, prior, weight, retry, R, O, intr, size, rc, offset, ra
     rounds, node limit). ``polynomial``: the free centre is fitted (problem lights
     ``center_lights`` (n, 3), r_c ``center_radius``) from ``start`` (3,) (the match's centre
     where it is NaN) and mapped (``map_*``); else the screen point of the optical axis from
-    the calibrated ``eye_center`` (3,). Outputs: the follow kernel's (``assign``, ``dist``, ``conf`` (k,), angles ``x``
-    (2,), the match's cornea ``center`` (3,), the orbit fit's ``JtJ`` (2, 2)), the screen
-    point ``xy`` (2,) and polynomial gaze's centre ``fit_x`` (3,).
+    the calibrated ``eye_center`` (3,). Outputs: the fitted angles ``x`` (2,), the match's
+    cornea ``center`` (3,), the screen point ``xy`` (2,), polynomial gaze's centre ``fit_x``
+    (3,), and what the sample and the state take from the follow kernel's outputs where the
+    band is accepted: the matched detections in detection order in the first m rows of
+    ``glints`` (k, 2), their lights and confidences in ``light`` and ``conf`` (k,), and the
+    covariance ``cov`` (2, 2) of the angles: ``noise2`` (σ², px²) times the inverse of the
+    orbit fit's JᵀJ (:func:`inverse_scaled`), infinite where that is singular.
 
-    Returns (outcome, RMS px of the sample's fit): :data:`ACCEPTED` where the band is
+    Returns (outcome, RMS px of the sample's fit, m): :data:`ACCEPTED` where the band is
     identified and its estimate has a finite screen point and an RMS within
     ``max_residual_px``, :data:`DECLINED` where the search decides, :data:`FALLBACK` where
     the Python form does."""
+    k = g.shape[0]
+    assign, dist, every = np.empty(k, dtype=np.int64), np.empty(k), np.empty(k)
+    JtJ = np.zeros((2, 2))
+    outcome, rms = _cheap_band(g, lo, hi, prior, weight, retry, R, O, intr, size, rc, offset,
+                               radius, lights, cap, ce, rco, fit_radius, xtol, group, shifted,
+                               fp, ip, polynomial, start, center_lights, center_radius,
+                               map_offset, map_scale, map_exponents, map_coefficients,
+                               eye_center, screen_z, max_residual_px, assign, dist, every, x,
+                               center, JtJ, xy, fit_x)
+    if outcome != ACCEPTED:
+        return outcome, rms, 0
+    m = 0
+    for d in range(k):
+        if assign[d] >= 0:
+            glints[m, 0], glints[m, 1] = g[d, 0], g[d, 1]
+            light[m], conf[m] = assign[d], every[d]
+            m += 1
+    inverse_scaled(JtJ, noise2, cov)
+    return outcome, rms, m
+
+
+def inverse_scaled(A, scale, out):
+    """``scale`` times :func:`estimator.tracking.inverse_2x2` of ``A`` (2, 2) (rcond 1e-12)
+    into ``out`` (2, 2): its closed form and singularity test in the same operations and
+    order, each element ``scale * (entry / det)`` as numpy computes ``scale * (adjugate /
+    det)``; infinite where that inverse is None."""
+    a, b, c, d = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
+    det = a * d - b * c
+    if not det > 1e-12 * a * d:
+        for i in range(2):
+            for j in range(2):
+                out[i, j] = math.inf
+        return
+    out[0, 0] = scale * (d / det)
+    out[0, 1] = scale * (-b / det)
+    out[1, 0] = scale * (-c / det)
+    out[1, 1] = scale * (a / det)
+
+
+def _cheap_band(g, lo, hi, prior, weight, retry, R, O, intr, size, rc, offset, radius, lights,
+                cap, ce, rco, fit_radius, xtol, group, shifted, fp, ip, polynomial, start,
+                center_lights, center_radius, map_offset, map_scale, map_exponents,
+                map_coefficients, eye_center, screen_z, max_residual_px, assign, dist, conf, x,
+                center, JtJ, xy, fit_x):
+    """:func:`cheap_band`'s identification and estimate into the follow kernel's ``assign``,
+    ``dist``, ``conf`` (k,) and ``JtJ`` (2, 2) and the other outputs: (outcome, RMS px)."""
     nan = math.nan
     for i in range(g.shape[0]):
         if not (math.isfinite(g[i, 0]) and math.isfinite(g[i, 1])):
@@ -171,6 +225,8 @@ if ENABLED:
     int_power = _jit(int_power)
     mapped_point = _jit(mapped_point)
     axis_point = _jit(axis_point)
+    inverse_scaled = _jit(inverse_scaled)
+    _cheap_band = _jit(_cheap_band)
     cheap_band = _jit(cheap_band)
 
 
@@ -222,25 +278,27 @@ class CheapBand:
         tail = (np.ascontiguousarray(center.lights_world_m, dtype=np.float64),
                 float(center.cornea_radius_m), *mapping,
                 np.asarray(context.calibration.eye_center_m, dtype=np.float64).reshape(3),
-                float(context.setup.screen.z_m), float(max_residual_px))
+                float(context.setup.screen.z_m), float(max_residual_px),
+                float(context.prior.noise_px ** 2))
         return cls(fixed, polynomial, tail)
 
     def __call__(self, g, rows, prior, prior_term: bool, retry, start):
         """One band: detections ``g`` (k, 2), ``rows`` (first, last), ``prior`` (2,) rad,
         ``prior_term`` (the follow step's prior weight), the second try's rotation ``retry``
         (2,) or None, the free centre's ``start`` (3,) or None. Returns (outcome, RMS px,
-        assign (k,), conf (k,), angles (2,), centre (3,), JᵀJ (2, 2), screen point (2,),
-        fitted centre (3,))."""
+        matched detections (m, 2), their lights (m,) and confidences (m,), angles (2,),
+        centre (3,), covariance of the angles (2, 2) (σ² (JᵀJ)⁻¹), screen point (2,), fitted
+        centre (3,)); each array its own (views of arrays made for this call)."""
         k = g.shape[0]
-        assign, dist, conf = np.empty(k, dtype=np.int64), np.empty(k), np.empty(k)
-        x, center, JtJ = np.empty(2), np.empty(3), np.zeros((2, 2))
+        glints, light, conf = np.empty((k, 2)), np.empty(k, dtype=np.int64), np.empty(k)
+        x, center, cov = np.empty(2), np.empty(3), np.empty((2, 2))
         xy, fit_x = np.empty(2), np.empty(3)
-        outcome, rms = cheap_band(
+        outcome, rms, m = cheap_band(
             g, float(rows[0]), float(rows[1]), prior, 1.0 if prior_term else 0.0,
             _NAN2 if retry is None else retry, *self.fixed,
-            _NAN3 if start is None else start, *self.tail, assign, dist, conf, x, center, JtJ,
-            xy, fit_x)
-        return outcome, rms, assign, conf, x, center, JtJ, xy, fit_x
+            _NAN3 if start is None else start, *self.tail, glints, light, conf, x, center,
+            cov, xy, fit_x)
+        return (outcome, rms, glints[:m], light[:m], conf[:m], x, center, cov, xy, fit_x)
 
 
 _NAN2, _NAN3 = np.full(2, np.nan), np.full(3, np.nan)

@@ -43,7 +43,7 @@ import numpy as np
 from ..banding import band_rows, strobe_instant
 from ..calibration import Calibration
 from ..gaze import calibrated_problems
-from ..glints import NO_BAND, DetectionParams, GlintDetector
+from ..glints import NO_BAND, DetectionParams, GlintDetector, undistort_points_px
 from ..lens import ideal_setup
 from ..matching import BandFollower, FollowParams, GlintMatcher, MatchParams
 from ..reasons import Reason, flux_cut_failure, internal_error
@@ -233,10 +233,10 @@ class Tracker:
                 self.reset()
                 return [failed_sample(frame_index, j, t, reason) for (j, _), t in zip(bands, times)]
             det = self.detector(frame, frame_index)
-            # The one place detections enter the tracker's geometry: through the lens into the
-            # ideal pinhole image (a pinhole camera passes them on untouched).
-            det = det.select(~det.has(NO_BAND)).undistorted(self.lens_camera)
-            spans, glints, flux = self.group(det, bands)
+            # The one place detections enter the tracker's geometry (group): those a band lit,
+            # through the lens into the ideal pinhole image (a pinhole camera passes them on
+            # untouched).
+            spans, glints, flux = self.group(det, bands, self.lens_camera)
             flag = self.flags_cut_glints
             samples = [self.band(frame_index, glints[a:b], band, t, flux[a:b] if flag else None)
                        for (a, b), band, t in zip(spans, bands, times)]
@@ -266,19 +266,30 @@ class Tracker:
         return np.concatenate(used)
 
     @staticmethod
-    def group(det, bands) -> tuple[list, np.ndarray, np.ndarray]:
-        """The detections ``det`` of a frame grouped by strobe, once for all its ``bands``
-        ([(pulse j, rows)]): ([(start, stop)] of each band's rows in the glints and fluxes,
-        glints (m, 2), fluxes (m,)), the detections in the order of their strobes, each
-        strobe's in the detector's order (a stable sort: each band's slice is the rows
-        ``glints_px[strobe_index == j]`` of the frame's detections)."""
-        strobes = det.strobe_index
+    def group(det, bands, camera=None) -> tuple[list, np.ndarray, np.ndarray]:
+        """The detections ``det`` of a frame that a band lit (those flagged ``NO_BAND`` left
+        out), grouped by strobe once for all its ``bands`` ([(pulse j, rows)]): ([(start,
+        stop)] of each band's rows in the glints and fluxes, glints (m, 2), fluxes (m,)), the
+        detections in the order of their strobes, each strobe's in the detector's order (a
+        stable sort: each band's slice is the rows ``glints_px[strobe_index == j]`` of the
+        frame's detections). With a ``camera`` whose lens distorts, the glints are
+        :meth:`~estimator.glints.GlintDetections.undistorted` through it (before the sort,
+        as that method does on the kept detections). The same arrays as
+        ``det.select(~det.has(NO_BAND)).undistorted(camera)`` grouped, without the
+        intermediate detections (8 arrays and a dataclass a frame)."""
+        keep = np.flatnonzero((det.flags & NO_BAND) == 0)
+        u, v = det.u_px[keep], det.v_px[keep]
+        if camera is not None and camera.has_distortion and keep.size:
+            uv = undistort_points_px(camera, np.stack([u, v], axis=-1))
+            u, v = uv[:, 0], uv[:, 1]
+        strobes = det.strobe_index[keep]
         order = np.argsort(strobes, kind="stable")
         ranked = strobes[order]
         pulses = np.fromiter((b[0] for b in bands), dtype=np.int64, count=len(bands))
         lo = np.searchsorted(ranked, pulses, side="left").tolist()
         hi = np.searchsorted(ranked, pulses, side="right").tolist()
-        return list(zip(lo, hi)), det.glints_px[order], det.intensity[order]
+        glints = np.stack([u, v], axis=-1)[order]
+        return list(zip(lo, hi)), glints, det.intensity[keep][order]
 
     def frame_check(self, frame) -> str | None:
         """Why ``frame`` cannot be tracked (a :class:`~estimator.reasons.Reason`), or None."""

@@ -13,6 +13,7 @@ import estimator.tracking.kernel as kernel
 import estimator.tracking.prior_kernel as prior_kernel
 from estimator.calibration import MAPPING_TERMS, fit_gaze_mapping
 from estimator.tracker import Tracker
+from estimator.tracking import inverse_2x2
 from tests.estimator.test_cheap_path import saccade_frames
 from tests.estimator.test_tracker import calibration, setup  # noqa: F401 fixtures
 
@@ -44,6 +45,31 @@ def test_the_compiled_mapping_is_predict_one_to_the_last_bit(kind):
         want = np.array(mapping.predict_one(f))
         assert np.array_equal(out.view(np.int64), want.view(np.int64))
 
+
+
+def test_the_compiled_covariance_is_the_sample_steps_to_the_last_bit():
+    """:func:`kernel.inverse_scaled` is ``noise_px ** 2 * inverse_2x2(JᵀJ)`` (an infinite
+    matrix where that is None) bit for bit: well-conditioned JᵀJ of orbit fits' scale (a few
+    glints, ~1e6-1e8 px²/rad²), nearly and exactly singular ones, zero, NaN."""
+    rng = np.random.default_rng(5)
+    mats = []
+    for _ in range(3000):
+        J = rng.normal(0.0, 10.0 ** rng.uniform(2, 4), (rng.integers(1, 9), 2))
+        mats.append(J.T @ J)
+    J = rng.normal(0.0, 1e3, (2000, 1, 2))  # rank one: det within rounding of 0
+    mats += [j.T @ j for j in J]
+    mats += [np.zeros((2, 2)), np.full((2, 2), np.nan), np.array([[1.0, 1.0], [1.0, 1.0]]),
+             np.array([[4.0, 2.0], [2.0, 1.0 + 1e-12]]), np.array([[-1.0, 0.0], [0.0, 2.0]])]
+    noise = 0.5
+    out = np.empty((2, 2))
+    singular = 0
+    for A in mats:
+        kernel.inverse_scaled(A, noise ** 2, out)
+        inv = inverse_2x2(A)
+        want = np.full((2, 2), np.inf) if inv is None else noise ** 2 * inv
+        singular += inv is None
+        assert np.array_equal(out.view(np.int64), want.view(np.int64)), A
+    assert singular > 5, "the singular cases are exercised"
 
 class _Counted:
     """A context's compiled step, counting the bands it answers with ``outcome``."""
