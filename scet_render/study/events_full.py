@@ -30,7 +30,7 @@ from estimator.events import EventParams, EventStream, detect_events
 from estimator.events.detect import FIRST_ROUND
 from estimator.scene import load_scene
 
-from .events_score import match_events, pool, summarise, truth_events
+from .events_score import TWIN_RESIDUALS, match_events, pool, summarise, truth_events
 from .events_sim import (StreamSetting, band_setting, on_screen_mask, simulate_stream,
                          study_trajectory)
 
@@ -53,9 +53,11 @@ CHANGES = (
     ("+ speeds in their own fits' noise", replace(FIRST_ROUND, centroid_timing=True,
                                                   local_noise=True)),
     ("+ 20 ms minimum intersaccadic interval", replace(EventParams(), edge_fit=False,
-                                                       bounded_gap_reach=False)),
-    ("+ edge fit", replace(EventParams(), bounded_gap_reach=False)),
-    ("+ bounds at most 12.5 ms into long gaps (today's detector)", EventParams()),
+                                                       bounded_gap_reach=False,
+                                                       glitches_before_merge=False)),
+    ("+ edge fit", replace(EventParams(), bounded_gap_reach=False, glitches_before_merge=False)),
+    ("+ bounds at most 12.5 ms into long gaps", replace(EventParams(), glitches_before_merge=False)),
+    ("+ glitches rejected before merging (today's detector)", EventParams()),
 )
 #: Further trajectories of the goal setting the changes are measured on (seeds of
 #: :func:`study_trajectory` and the noise, added to the study's): first simulated after the
@@ -410,6 +412,29 @@ def band_agreement(t, ok_rendered, ts, ok_simulated, reasons) -> dict:
 OUTLIER_SDS = 5.0
 
 
+#: Eye speed bands (deg/s) within which the third twin draws the renders' own errors.
+RESIDUAL_SPEEDS_DEG_S = (0.0, 30.0, 100.0, 300.0, math.inf)
+
+
+def residuals_by_speed(traj, t, pos, truth_pos, ok, rng) -> np.ndarray:
+    """(n, 2) deg: the truth at the valid instants plus an error drawn (with replacement)
+    from the valid rendered samples' errors (less their median) whose true eye speed (the
+    trajectory's, by central difference over 0.2 ms) lies in the same band of
+    :data:`RESIDUAL_SPEEDS_DEG_S`; NaN where the render has no sample."""
+    h = 1e-4
+    y0, p0 = traj.angles_at(t - h)
+    y1, p1 = traj.angles_at(t + h)
+    speed = np.degrees(np.hypot(y1 - y0, p1 - p0)) / (2 * h)
+    err = pos - truth_pos
+    err -= np.median(err[ok], axis=0)
+    out = np.full_like(pos, np.nan)
+    for lo, hi in zip(RESIDUAL_SPEEDS_DEG_S[:-1], RESIDUAL_SPEEDS_DEG_S[1:]):
+        m = ok & (speed >= lo) & (speed < hi)
+        if m.any():
+            out[m] = truth_pos[m] + err[rng.choice(np.flatnonzero(m), int(m.sum()))]
+    return out
+
+
 def rendered_comparison(scene, out_dir: Path, seed: int, *, render: bool):
     """Score the tracked rendered sub-sequence (the frames rendered so far, from frame 0) and
     the simulation of the same trajectory and setting; None when nothing is rendered."""
@@ -438,6 +463,9 @@ def rendered_comparison(scene, out_dir: Path, seed: int, *, render: bool):
     rng = np.random.default_rng(np.random.SeedSequence([seed, 342]))
     pm = truth_pos + rng.normal(0.0, sd_rendered, truth_pos.shape)
     pm[~ok] = np.nan
+    # the third twin: the renders' valid bands with their own errors, each drawn from the
+    # valid samples whose true eye speed falls in the same band of RESIDUAL_SPEEDS_DEG_S
+    pr = residuals_by_speed(traj, t, pos, truth_pos, ok, rng)
     reasons = sample_reasons(out_dir / "designed", frames)
     if len(reasons) != t.size:
         raise ValueError(f"{out_dir / 'designed'}: {len(reasons)} reasons for {t.size} samples")
@@ -451,6 +479,7 @@ def rendered_comparison(scene, out_dir: Path, seed: int, *, render: bool):
         ms, ss = score(sim_setting, traj, ts, ps, det)
         sm = score(sim_setting, traj, t, pm, det)[1]
         out[det] = {"rendered": sr, "simulated": ss, "simulated, the renders' valid bands": sm,
+                    TWIN_RESIDUALS: score(sim_setting, traj, t, pr, det)[1],
                     "n": int((mr.truth.amplitude_deg >= 1).sum()),
                     "n_all": int(mr.truth.onset_s.size)}
     return out

@@ -21,6 +21,10 @@ BOOTSTRAP = 2000
 Z95 = 1.959963984540054
 
 
+#: The rendered comparison's third twin (:func:`scet_render.study.events_full.residuals_by_speed`).
+TWIN_RESIDUALS = "simulated, the renders' valid bands and errors by eye speed"
+
+
 @dataclass(frozen=True, slots=True)
 class Truth:
     onset_s: np.ndarray

@@ -193,3 +193,31 @@ def test_agreement_text_gives_the_four_cases_as_shares_of_the_bands():
     assert "| rendered invalid | 30 (15.0 %) | 10 (5.0 %) |" in text
     assert "match_ambiguous 20, band_out_of_reach 10" in text
     assert agreement_text(None) == "" and agreement_text({"agreement": None}) == ""
+
+
+def test_residuals_by_speed_draw_each_error_from_its_own_speed_band(designed):
+    """The third twin's errors come from valid samples of the same eye-speed band: errors
+    planted as 0.01 deg in fixation and 0.3 deg above 300 deg/s come back in the same bands,
+    and an invalid sample stays NaN."""
+    from scet_render.dataset import dataset_trajectory
+    from scet_render.study.events_full import residuals_by_speed
+
+    traj = dataset_trajectory(designed, "saccades", 60, 0)
+    t = np.arange(0.0, 0.9, 0.001)
+    y, p = traj.angles_at(t)
+    truth = np.degrees(np.column_stack([y, p]))
+    h = 1e-4
+    y0, p0 = traj.angles_at(t - h)
+    y1, p1 = traj.angles_at(t + h)
+    speed = np.degrees(np.hypot(y1 - y0, p1 - p0)) / (2 * h)
+    fast = speed >= 300
+    assert fast.sum() >= 10 and (speed < 30).sum() >= 100
+    planted = np.where(fast[:, None], 0.3, 0.01) * np.array([1.0, 0.0])
+    ok = np.ones(t.size, dtype=bool)
+    ok[5] = False
+    pos = truth + planted
+    out = residuals_by_speed(traj, t, pos, truth, ok, np.random.default_rng(0))
+    err = out - truth + np.median(planted[ok], axis=0)
+    assert np.isnan(out[5]).all()
+    assert np.allclose(err[fast & ok], [0.3, 0.0], atol=1e-9)
+    assert np.allclose(err[(speed < 30) & ok], [0.01, 0.0], atol=1e-9)
