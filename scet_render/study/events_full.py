@@ -412,32 +412,10 @@ def band_agreement(t, ok_rendered, ts, ok_simulated, reasons) -> dict:
 OUTLIER_SDS = 5.0
 
 
-#: Eye speed bands (deg/s) within which the third twin draws the renders' own errors.
-RESIDUAL_SPEEDS_DEG_S = (0.0, 30.0, 100.0, 300.0, math.inf)
-
-
-def residuals_by_speed(traj, t, pos, truth_pos, ok, rng) -> np.ndarray:
-    """(n, 2) deg: the truth at the valid instants plus an error drawn (with replacement)
-    from the valid rendered samples' errors (less their median) whose true eye speed (the
-    trajectory's, by central difference over 0.2 ms) lies in the same band of
-    :data:`RESIDUAL_SPEEDS_DEG_S`; NaN where the render has no sample."""
-    h = 1e-4
-    y0, p0 = traj.angles_at(t - h)
-    y1, p1 = traj.angles_at(t + h)
-    speed = np.degrees(np.hypot(y1 - y0, p1 - p0)) / (2 * h)
-    err = pos - truth_pos
-    err -= np.median(err[ok], axis=0)
-    out = np.full_like(pos, np.nan)
-    for lo, hi in zip(RESIDUAL_SPEEDS_DEG_S[:-1], RESIDUAL_SPEEDS_DEG_S[1:]):
-        m = ok & (speed >= lo) & (speed < hi)
-        if m.any():
-            out[m] = truth_pos[m] + err[rng.choice(np.flatnonzero(m), int(m.sum()))]
-    return out
-
-
 def rendered_comparison(scene, out_dir: Path, seed: int, *, render: bool):
     """Score the tracked rendered sub-sequence (the frames rendered so far, from frame 0) and
     the simulation of the same trajectory and setting; None when nothing is rendered."""
+    from .events_errors import goal_with_rendered_errors, residuals_by_speed
     from .events_render import rendered_samples
 
     got = rendered_samples(scene, out_dir / "designed", seed=seed, render=render)
@@ -466,13 +444,17 @@ def rendered_comparison(scene, out_dir: Path, seed: int, *, render: bool):
     # the third twin: the renders' valid bands with their own errors, each drawn from the
     # valid samples whose true eye speed falls in the same band of RESIDUAL_SPEEDS_DEG_S
     pr = residuals_by_speed(traj, t, pos, truth_pos, ok, rng)
+    goal_errors = goal_with_rendered_errors(load_scene(scene), traj, t, pos, truth_pos, ok, seed,
+                                            score=score, noise_sd_deg=noise_sd_deg(
+                                                load_scene(scene).name, 16),
+                                            counts=(N_SACCADES, N_MICRO))
     reasons = sample_reasons(out_dir / "designed", frames)
     if len(reasons) != t.size:
         raise ValueError(f"{out_dir / 'designed'}: {len(reasons)} reasons for {t.size} samples")
     out = {"frames": frames, "planned": planned, "noise_sd_deg": sd_rendered, "rms_deg": rms,
            "reasons": invalid_reasons(out_dir / "designed", frames),
            "agreement": band_agreement(t, ok, ts, np.isfinite(ps).all(axis=1), reasons),
-           "outliers": outliers,
+           "outliers": outliers, "goal with rendered errors": goal_errors,
            "valid_rendered": float(ok.mean()), "valid_simulated": float(np.isfinite(ps).all(axis=1).mean())}
     for det in DETECTORS:
         mr, sr = score(sim_setting, traj, t, pos, det)

@@ -13,6 +13,7 @@ from estimator.events import EventParams
 from estimator.formats import atomic_write
 
 from .events_changes import _fmt, _spec, changes_section
+from .events_errors import rendered_errors_table
 from .events_score import BOOTSTRAP, GOALS, MEASURES, TWIN_RESIDUALS
 
 DET_NAMES = {"scet": "band detector", "ivt": "I-VT", "idt": "I-DT"}
@@ -466,6 +467,7 @@ interval after a reported one taken as its continuation. Latency over the matche
 {agreement_text(rendered)}
 {rendered_table(rendered)}
 {rendered_verdict(rendered)}
+{rendered_errors_table(rendered, DET_NAMES, _met)}
 {"![rendered and simulated](figures/events_rendered.png)" if rendered is not None else ""}
 
 ## Every setting

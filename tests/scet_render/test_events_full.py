@@ -200,7 +200,7 @@ def test_residuals_by_speed_draw_each_error_from_its_own_speed_band(designed):
     planted as 0.01 deg in fixation and 0.3 deg above 300 deg/s come back in the same bands,
     and an invalid sample stays NaN."""
     from scet_render.dataset import dataset_trajectory
-    from scet_render.study.events_full import residuals_by_speed
+    from scet_render.study.events_errors import residuals_by_speed
 
     traj = dataset_trajectory(designed, "saccades", 60, 0)
     t = np.arange(0.0, 0.9, 0.001)
@@ -221,3 +221,18 @@ def test_residuals_by_speed_draw_each_error_from_its_own_speed_band(designed):
     assert np.isnan(out[5]).all()
     assert np.allclose(err[fast & ok], [0.3, 0.0], atol=1e-9)
     assert np.allclose(err[(speed < 30) & ok], [0.01, 0.0], atol=1e-9)
+
+
+def test_rendered_errors_table_marks_each_value_against_its_goal():
+    from scet_render.study.events_errors import rendered_errors_table
+
+    summ = {"detected_1deg": (100.0, 98.5, 100.0), "false_per_min": (2.0, 0.5, 5.0),
+            "onset_mae_ms": (0.9, 0.8, 0.95), "offset_mae_ms": (1.1, 1.0, 1.2),
+            "peak_rel_err_pct": (2.5, 2.3, 2.8), "micro_detected": (97.0, 93.0, 99.0)}
+    from scet_render.study.events_full_report import DET_NAMES, _met
+
+    text = rendered_errors_table({"goal with rendered errors": {"scet": {"rendered errors": summ}}},
+                                 DET_NAMES, _met)
+    row = next(line for line in text.splitlines() if line.startswith("| band detector"))
+    assert "rendered errors" in row and row.count("**no**") == 2  # false events, offset
+    assert rendered_errors_table(None, DET_NAMES, _met) == ""
