@@ -40,16 +40,27 @@ def camera_floats(R, O, intr, size) -> tuple:
             *(float(v) for v in size))
 
 
+def _rotate(cam, v0, v1, v2):
+    """R v (3 floats): a world vector in the camera's axes (the kernels' products and sums)."""
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = cam[:9]
+    return (r00 * v0 + r01 * v1 + r02 * v2, r10 * v0 + r11 * v1 + r12 * v2,
+            r20 * v0 + r21 * v1 + r22 * v2)
+
+
 def lights_in_camera(cam, lights):
     """R (L - O) of each light (k, 3): the part of the kernels' per-light rotation that does
     not depend on the cornea (the same products and sums)."""
-    r00, r01, r02, r10, r11, r12, r20, r21, r22, o0, o1, o2 = cam[:12]
-    out = []
-    for L in lights:
-        q0, q1, q2 = float(L[0]) - o0, float(L[1]) - o1, float(L[2]) - o2
-        out.append((r00 * q0 + r01 * q1 + r02 * q2, r10 * q0 + r11 * q1 + r12 * q2,
-                    r20 * q0 + r21 * q1 + r22 * q2))
-    return out
+    o0, o1, o2 = cam[9:12]
+    return [_rotate(cam, float(L[0]) - o0, float(L[1]) - o1, float(L[2]) - o2) for L in lights]
+
+
+def _toward_camera(cam, c0, c1, c2):
+    """The cornea centre (world, 3 floats) in the camera's axes, its distance from the camera
+    and the unit e1 from it toward the camera: (cx, cy, cz, |c|, e1x, e1y, e1z)."""
+    cx, cy, cz = _rotate(cam, c0 - cam[9], c1 - cam[10], c2 - cam[11])
+    o_norm = math.sqrt(cx * cx + cy * cy + cz * cz)
+    inv_o = 1.0 / o_norm if o_norm > 0 else 1.0
+    return cx, cy, cz, o_norm, -cx * inv_o, -cy * inv_o, -cz * inv_o
 
 
 def _centre(model, x, ce, rco):
@@ -80,42 +91,46 @@ def _plane(lx, ly, lz, e1x, e1y, e1z):
     return l_par, l_perp, l_norm, inv_n, px * inv, py * inv, pz * inv
 
 
+def _glint(cam, radius, cx, cy, cz, o_norm, e1x, e1y, e1z, q):
+    """One light's reflection (``q``: R (L - O), :func:`lights_in_camera`) on the sphere of
+    ``radius`` about the centre (cx, cy, cz) in camera axes, o_norm and e1 from
+    :func:`_toward_camera`: (outside, a, b, cos θ, sin θ, c1, e2 (3), normal n (3), point
+    (X, Y, Z), pixel (u, v)), ``outside`` whether camera and light are both outside the
+    sphere (else a = b = 2, the root still defined), u = v = NaN behind the camera."""
+    l_par, l_perp, l_norm, inv_n, e2x, e2y, e2z = _plane(q[0] - cx, q[1] - cy, q[2] - cz,
+                                                         e1x, e1y, e1z)
+    alpha, beta = o_norm / radius, l_norm / radius
+    cp, sp = l_par * inv_n, l_perp * inv_n
+    outside = alpha > 1 and beta > 1
+    a, b = (alpha, beta) if outside else (2.0, 2.0)
+    ct, st = _root(a, b, cp, sp)
+    nx, ny, nz = ct * e1x + st * e2x, ct * e1y + st * e2y, ct * e1z + st * e2z
+    X, Y, Z = cx + radius * nx, cy + radius * ny, cz + radius * nz
+    c1 = cp * ct + sp * st
+    if Z > 0:
+        iz = 1.0 / Z
+        u = cam[12] * X * iz + cam[14]
+        v = cam[13] * Y * iz + cam[15]
+    else:
+        u = v = math.nan
+    return outside, a, b, ct, st, c1, e2x, e2y, e2z, nx, ny, nz, X, Y, Z, u, v
+
+
 def _evaluate(cam, model, x, ce, rco, radius, rq, glints):
     """The glints' squared residual at x (px²), JᵀJ (p lists of p) and Jᵀr (p) of their
     residuals r and Jacobian J = d r / d x: ``_residuals_rows`` and ``_normal_sums`` of
     :mod:`estimator.cornea.small`, with :func:`estimator.geometry.compiled.glints_kernel`'s
     projection and ``_jacobian_rows`` written out for one light at a time, and the sums taken
     as each light's two rows come (the rows' order: the same sums)."""
-    r00, r01, r02, r10, r11, r12, r20, r21, r22, o0, o1, o2, fx, fy, ccx, ccy, w, h = cam
-    c0, c1_, c2 = _centre(model, x, ce, rco)
-    d0, d1, d2 = c0 - o0, c1_ - o1, c2 - o2
-    cx = r00 * d0 + r01 * d1 + r02 * d2
-    cy = r10 * d0 + r11 * d1 + r12 * d2
-    cz = r20 * d0 + r21 * d1 + r22 * d2
-    o_norm = math.sqrt(cx * cx + cy * cy + cz * cz)
-    inv_o = 1.0 / o_norm if o_norm > 0 else 1.0
-    e1x, e1y, e1z = -cx * inv_o, -cy * inv_o, -cz * inv_o
+    cx, cy, cz, o_norm, e1x, e1y, e1z = _toward_camera(cam, *_centre(model, x, ce, rco))
     if model == 1:
         cyw, syw, cpt, spt = math.cos(x[0]), math.sin(x[0]), math.cos(x[1]), math.sin(x[1])
         dy0, dy2 = rco * cpt * cyw, rco * cpt * syw
         dp0, dp1, dp2 = -rco * spt * syw, rco * cpt, rco * spt * cyw
     cost = t0 = t1 = t2 = a00 = a01 = a02 = a11 = a12 = a22 = 0.0
-    for i, (qx, qy, qz) in enumerate(rq):
-        lx, ly, lz = qx - cx, qy - cy, qz - cz
-        l_par, l_perp, l_norm, inv_n, e2x, e2y, e2z = _plane(lx, ly, lz, e1x, e1y, e1z)
-        alpha, beta = o_norm / radius, l_norm / radius
-        cp, sp = l_par * inv_n, l_perp * inv_n
-        a, b = (alpha, beta) if alpha > 1 and beta > 1 else (2.0, 2.0)
-        ct, st = _root(a, b, cp, sp)
-        nx, ny, nz = ct * e1x + st * e2x, ct * e1y + st * e2y, ct * e1z + st * e2z
-        X, Y, Z = cx + radius * nx, cy + radius * ny, cz + radius * nz
-        c1 = cp * ct + sp * st
-        if Z > 0:
-            iz = 1.0 / Z
-            u = fx * X * iz + ccx
-            v = fy * Y * iz + ccy
-        else:
-            u = v = math.nan
+    for i, q in enumerate(rq):
+        _, a, b, ct, st, c1, e2x, e2y, e2z, nx, ny, nz, X, Y, Z, u, v = _glint(
+            cam, radius, cx, cy, cz, o_norm, e1x, e1y, e1z, q)
         du, dv = u - glints[i][0], v - glints[i][1]
         cost += du * du + dv * dv
         (ju0, ju1, ju2), (jv0, jv1, jv2) = _jacobian_rows(
@@ -320,38 +335,15 @@ def glints_floats(cam, center, radius, rq, axis, cap_cos_min, with_jacobian):
     jac : list of n ((3 float), (3 float)) or None
         The rows d u / d c and d v / d c (px per m, world frame).
     """
-    r00, r01, r02, r10, r11, r12, r20, r21, r22, o0, o1, o2, fx, fy, ccx, ccy, w, h = cam
-    d0, d1, d2 = center[0] - o0, center[1] - o1, center[2] - o2
-    cx = r00 * d0 + r01 * d1 + r02 * d2
-    cy = r10 * d0 + r11 * d1 + r12 * d2
-    cz = r20 * d0 + r21 * d1 + r22 * d2
-    ax = r00 * axis[0] + r01 * axis[1] + r02 * axis[2]
-    ay = r10 * axis[0] + r11 * axis[1] + r12 * axis[2]
-    az = r20 * axis[0] + r21 * axis[1] + r22 * axis[2]
-    o_norm = math.sqrt(cx * cx + cy * cy + cz * cz)
-    inv_o = 1.0 / o_norm if o_norm > 0 else 1.0
-    e1x, e1y, e1z = -cx * inv_o, -cy * inv_o, -cz * inv_o
+    cx, cy, cz, o_norm, e1x, e1y, e1z = _toward_camera(cam, center[0], center[1], center[2])
+    ax, ay, az = _rotate(cam, axis[0], axis[1], axis[2])
     glints, visible, jac = [], [], [] if with_jacobian else None
-    u_hi, v_hi = w - 0.5, h - 0.5
-    for qx, qy, qz in rq:
-        lx, ly, lz = qx - cx, qy - cy, qz - cz
-        l_par, l_perp, l_norm, inv_n, e2x, e2y, e2z = _plane(lx, ly, lz, e1x, e1y, e1z)
-        alpha, beta = o_norm / radius, l_norm / radius
-        cp, sp = l_par * inv_n, l_perp * inv_n
-        outside = alpha > 1 and beta > 1
-        a, b = (alpha, beta) if outside else (2.0, 2.0)
-        ct, st = _root(a, b, cp, sp)
-        nx, ny, nz = ct * e1x + st * e2x, ct * e1y + st * e2y, ct * e1z + st * e2z
-        X, Y, Z = cx + radius * nx, cy + radius * ny, cz + radius * nz
-        c1 = cp * ct + sp * st
+    u_hi, v_hi = cam[16] - 0.5, cam[17] - 0.5
+    for q in rq:
+        outside, a, b, ct, st, c1, e2x, e2y, e2z, nx, ny, nz, X, Y, Z, u, v = _glint(
+            cam, radius, cx, cy, cz, o_norm, e1x, e1y, e1z, q)
         ok = outside and a * ct > 1 and b * c1 > 1
         ok = ok and nx * ax + ny * ay + nz * az >= cap_cos_min
-        if Z > 0:
-            iz = 1.0 / Z
-            u = fx * X * iz + ccx
-            v = fy * Y * iz + ccy
-        else:
-            u = v = math.nan
         glints.append((u, v))
         visible.append(ok and -0.5 <= u <= u_hi and -0.5 <= v <= v_hi)
         if with_jacobian:
