@@ -331,11 +331,6 @@ def _main_sequence(amplitude_deg, peak_deg_s, p: EventParams):
                 & (np.asarray(peak_deg_s, dtype=np.float64) <= p.max_peak_per_amplitude_hz * a))
 
 
-def _not_glitch(row, p: EventParams) -> bool:
-    """Whether an event row (onset, offset, ..., amplitude, peak, ...) may be merged."""
-    return bool(_main_sequence(row[4], row[5], p))
-
-
 def _merge(rows, p: EventParams) -> list:
     """Rows (onset, offset, onset unc., offset unc., amplitude, peak, pre (2,), post (2,)) in
     onset order, each event starting less than ``p.min_interval_s`` after the previous one's
@@ -444,7 +439,7 @@ def detect_events(time_s, position_deg, params: EventParams = EventParams(), *,
             peak = float(np.nanmax(np.hypot(pv[inside, 0], pv[inside, 1])))
             rows.append((on, off, on_u, off_u, amp, peak, pre, post))
     if p.glitches_before_merge:
-        rows = [r for r in rows if _not_glitch(r, p)]
+        rows = [r for r in rows if _main_sequence(r[4], r[5], p)]
     rows = _merge(rows, p)
     if not rows:
         return empty_events()

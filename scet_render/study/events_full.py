@@ -378,11 +378,12 @@ def sample_reasons(folder: Path, frames: int) -> list:
     return [r["reason"] for r in read_samples_csv(Path(folder) / f"samples_{frames}.csv")]
 
 
-def invalid_reasons(folder: Path, frames: int) -> list:
-    """(reason, count) of the tracked rendered samples that are not ``ok``, most first."""
+def invalid_reasons(reasons) -> list:
+    """(reason, count) of the samples' ``reasons`` (:func:`sample_reasons`) that are not
+    ``ok``, most first."""
     from collections import Counter
 
-    return Counter(r for r in sample_reasons(folder, frames) if r != "ok").most_common()
+    return Counter(r for r in reasons if r != "ok").most_common()
 
 
 def band_agreement(t, ok_rendered, ts, ok_simulated, reasons) -> dict:
@@ -444,15 +445,16 @@ def rendered_comparison(scene, out_dir: Path, seed: int, *, render: bool):
     # the third twin: the renders' valid bands with their own errors, each drawn from the
     # valid samples whose true eye speed falls in the same band of RESIDUAL_SPEEDS_DEG_S
     pr = residuals_by_speed(traj, t, pos, truth_pos, ok, rng)
-    goal_errors = goal_with_rendered_errors(load_scene(scene), traj, t, pos, truth_pos, ok, seed,
-                                            score=score, noise_sd_deg=noise_sd_deg(
-                                                load_scene(scene).name, 16),
+    study_setup = load_scene(scene)
+    goal_errors = goal_with_rendered_errors(study_setup, traj, t, pos, truth_pos, ok, seed,
+                                            score=score,
+                                            noise_sd_deg=noise_sd_deg(study_setup.name, 16),
                                             counts=(N_SACCADES, N_MICRO))
     reasons = sample_reasons(out_dir / "designed", frames)
     if len(reasons) != t.size:
         raise ValueError(f"{out_dir / 'designed'}: {len(reasons)} reasons for {t.size} samples")
     out = {"frames": frames, "planned": planned, "noise_sd_deg": sd_rendered, "rms_deg": rms,
-           "reasons": invalid_reasons(out_dir / "designed", frames),
+           "reasons": invalid_reasons(reasons),
            "agreement": band_agreement(t, ok, ts, np.isfinite(ps).all(axis=1), reasons),
            "outliers": outliers, "goal with rendered errors": goal_errors,
            "valid_rendered": float(ok.mean()), "valid_simulated": float(np.isfinite(ps).all(axis=1).mean())}
