@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 
+from ..geometry.compiled import jacobian_in_camera as _jacobian_in_camera
 from ..geometry.compiled import reflection_root as _root
 
 __all__ = ["camera_floats", "lights_in_camera", "lm_floats", "glints_floats"]
@@ -355,34 +356,11 @@ def glints_floats(cam, center, radius, rq, axis, cap_cos_min, with_jacobian):
 def _jacobian_rows(cam, radius, a, b, ct, st, c1, e1x, e1y, e1z, e2x, e2y, e2z, nx, ny, nz, X,
                    Y, Z):
     """One light's d glint / d centre rows ((3 float), (3 float)), world frame
-    (``compiled._jacobian_rows``, its operations in its order)."""
+    (``compiled._jacobian_rows``: its rows in camera axes, turned by the same operations)."""
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = cam[:9]
-    fx, fy = cam[12], cam[13]
-    inv_qa = 1.0 / math.sqrt(max(a * a - 2 * a * ct + 1, 1e-300))
-    qb = math.sqrt(max(b * b - 2 * b * c1 + 1, 1e-300))
-    cos_i = (a * ct - 1) * inv_qa
-    sin_i = a * st * inv_qa
-    inv_du, inv_dw = inv_qa / radius, 1.0 / (radius * qb)
-    rH, rD = radius * (inv_du + inv_dw), radius * (inv_dw - inv_du)
-    inv_g = 1.0 / (2 + rH * cos_i)
-    inv_qk = 1.0 / (2 * cos_i + rH)
-    b_tn = rD * sin_i * inv_g
-    tx, ty, tz = st * e1x - ct * e2x, st * e1y - ct * e2y, st * e1z - ct * e2z
-    kx, ky, kz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
-    iz = 1.0 / Z
-    xz, yz = X * iz, Y * iz
-    fxz, fyz = fx * iz, fy * iz
-    pt_x, pt_y = tx - xz * tz, ty - yz * tz
-    pk_x, pk_y = kx - xz * kz, ky - yz * kz
-    m_t, m_k = 1 - 2 * inv_g, 1 - 2 * cos_i * inv_qk
-    wx, wy, wz = m_t * tx + b_tn * nx, m_t * ty + b_tn * ny, m_t * tz + b_tn * nz
-    qx_, qy_ = m_k * pk_x, m_k * pk_y
-    u0 = fxz * (1 - pt_x * wx - qx_ * kx)
-    u1 = fxz * -(pt_x * wy + qx_ * ky)
-    u2 = fxz * -(xz + pt_x * wz + qx_ * kz)
-    v0 = fyz * -(pt_y * wx + qy_ * kx)
-    v1 = fyz * (1 - pt_y * wy - qy_ * ky)
-    v2 = fyz * -(yz + pt_y * wz + qy_ * kz)
+    u0, u1, u2, v0, v1, v2 = _jacobian_in_camera(cam[12], cam[13], radius, a, b, ct, st, c1,
+                                                 e1x, e1y, e1z, e2x, e2y, e2z, nx, ny, nz,
+                                                 X, Y, Z)
     return ((u0 * r00 + u1 * r10 + u2 * r20, u0 * r01 + u1 * r11 + u2 * r21,
              u0 * r02 + u1 * r12 + u2 * r22),
             (v0 * r00 + v1 * r10 + v2 * r20, v0 * r01 + v1 * r11 + v2 * r21,

@@ -148,7 +148,20 @@ def glints_kernel(R, O, intr, size, center, radius, lights, axis, cap_cos_min, u
 def _jacobian_rows(R, intr, radius, a, b, ct, st, c1, e1x, e1y, e1z, e2x, e2y, e2z, nx, ny,
                    nz, X, Y, Z, jac, i):
     """Row i of d glint / d centre (2, 3), world frame, from one pair's plane and root (the
-    implicit derivative of the law of reflection, :mod:`estimator.geometry.jacobians`)."""
+    implicit derivative of the law of reflection, :mod:`estimator.geometry.jacobians`):
+    :func:`_jacobian_camera`'s rows turned into the world frame."""
+    u0, u1, u2, v0, v1, v2 = _jacobian_camera(intr[0], intr[1], radius, a, b, ct, st, c1, e1x,
+                                              e1y, e1z, e2x, e2y, e2z, nx, ny, nz, X, Y, Z)
+    for j in range(3):
+        jac[i, 0, j] = u0 * R[0, j] + u1 * R[1, j] + u2 * R[2, j]
+        jac[i, 1, j] = v0 * R[0, j] + v1 * R[1, j] + v2 * R[2, j]
+
+
+def _jacobian_camera(fx, fy, radius, a, b, ct, st, c1, e1x, e1y, e1z, e2x, e2y, e2z, nx, ny,
+                     nz, X, Y, Z):
+    """d u / d c and d v / d c (6 floats, px per m) in the camera's axes of one pair's glint,
+    from its plane (e1, e2), root (cos θ, sin θ, c1 = cos(φ - θ)), normal n and reflection
+    point (X, Y, Z), a = |c| / r, b = |l| / r, focal lengths fx, fy (px)."""
     inv_qa = 1.0 / math.sqrt(max(a * a - 2 * a * ct + 1, 1e-300))
     qb = math.sqrt(max(b * b - 2 * b * c1 + 1, 1e-300))
     cos_i = (a * ct - 1) * inv_qa
@@ -162,7 +175,7 @@ def _jacobian_rows(R, intr, radius, a, b, ct, st, c1, e1x, e1y, e1z, e2x, e2y, e
     kx, ky, kz = e1y * e2z - e1z * e2y, e1z * e2x - e1x * e2z, e1x * e2y - e1y * e2x
     iz = 1.0 / Z
     xz, yz = X * iz, Y * iz
-    fxz, fyz = intr[0] * iz, intr[1] * iz
+    fxz, fyz = fx * iz, fy * iz
     pt_x, pt_y = tx - xz * tz, ty - yz * tz
     pk_x, pk_y = kx - xz * kz, ky - yz * kz
     m_t, m_k = 1 - 2 * inv_g, 1 - 2 * cos_i * inv_qk
@@ -174,15 +187,14 @@ def _jacobian_rows(R, intr, radius, a, b, ct, st, c1, e1x, e1y, e1z, e2x, e2y, e
     v0 = fyz * -(pt_y * wx + qy * kx)
     v1 = fyz * (1 - pt_y * wy - qy * ky)
     v2 = fyz * -(yz + pt_y * wz + qy * kz)
-    for j in range(3):
-        jac[i, 0, j] = u0 * R[0, j] + u1 * R[1, j] + u2 * R[2, j]
-        jac[i, 1, j] = v0 * R[0, j] + v1 * R[1, j] + v2 * R[2, j]
+    return u0, u1, u2, v0, v1, v2
 
 
 if ENABLED:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
     _condition = _jit(_condition)
     _root = _jit(_root)
+    _jacobian_camera = _jit(_jacobian_camera)
     _jacobian_rows = _jit(_jacobian_rows)
     glints_kernel = _jit(glints_kernel)
 
@@ -190,6 +202,8 @@ if ENABLED:
 #: outside this package: :mod:`estimator.cornea.scalar`'s float fit runs where the JIT is off,
 #: and takes this plain-Python form (the same lines as the compiled kernels').
 reflection_root = _root
+#: One pair's d glint / d centre rows in camera axes, for the same callers.
+jacobian_in_camera = _jacobian_camera
 
 
 def camera_arrays(camera: Camera):
