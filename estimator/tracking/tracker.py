@@ -102,13 +102,19 @@ class Tracker:
     focus_detection : bool
         Search each frame for glints only around the glints its last frame's accepted samples
         used and those predicted at the last eye rotation (:meth:`focus_points`,
-        :class:`estimator.glints.GlintDetector` ``focus``; a whole-frame search every 30
-        frames, after a frame without an accepted sample or a dropped one, and where the
-        window holds nothing): clutter far from the eye is not detected. Off by default: bands
-        of clutter alone then fail as ``match_too_few_glints`` rather than
-        ``band_out_of_reach``, and a glint that appears outside the window waits for the next
-        whole-frame search (none did on the rendered datasets measured,
-        ``hardware/README.md``).
+        :class:`estimator.glints.GlintDetector` ``focus``), grown by how far a glint moves
+        while the eye turns by the plausibility check's reach over one frame period; a
+        whole-frame search every 30 frames, after a frame without an accepted sample or a
+        dropped one, and where the window holds nothing. With its fallback
+        (:meth:`focused_bands`, :attr:`focus_fallback`): a band where the last sample expects
+        glints beyond the window's edge, or that has no recent sample to bound the eye, is
+        done again on its rows across the whole width. Clutter far from the eye is not
+        detected. Off by default: bands of clutter alone then fail as
+        ``match_too_few_glints`` rather than ``band_out_of_reach`` or
+        ``prior_no_hypothesis``; the accepted samples were the whole frame's (same bands and
+        lights, estimates within 1.3e-8 m on the screen: the window's centroids differ in the
+        last bits) on every rendered dataset measured (``benchmarks/bench_focus.py``,
+        ``docs/results/benchmarks.md``, issue 31's fifth pass).
 
     Attributes
     ----------
@@ -129,6 +135,11 @@ class Tracker:
         Dense bands identified by the cheap path ("cheap"), by the hypothesis search
         ("search"), left to the prior unsearched ("unfillable"); bands done again without cut
         glints ("again").
+    focus_fallback : bool
+        With ``focus_detection``: whether the fallback runs (True; False measures the window
+        alone, ``benchmarks/bench_focus.py``).
+    refocused : int
+        Bands done again by the fallback.
     """
 
     def __init__(self, setup: Setup, calibration: Calibration, method: str = "polynomial", *,
@@ -182,8 +193,6 @@ class Tracker:
         self.counts = {"cheap": 0, "search": 0, "unfillable": 0, "again": 0}
         #: The last frame index taken (a frame not after it is ``frame_out_of_order``).
         self.last_frame_index: int | None = None
-        #: With ``focus_detection``: redo failed bands on the whole frame where the last
-        #: sample expects glints (:meth:`focused_bands`); :attr:`refocused` counts them.
         self.focus_fallback = True
         self.refocused = 0
         self._predicted = (None, None, None)  # (last estimate, u, v) of expects_glints
@@ -325,8 +334,12 @@ class Tracker:
             self._predicted = (state.last, pred[visible, 0], pred[visible, 1])
         u, v = self._predicted[1], self._predicted[2]
         (first, last), (y0, y1, x0, x1) = band[1], self.detector.window
+        cam = self.setup.camera  # a window's side on the frame's border holds all beyond it
+        x0, y0 = (x0 if x0 > 0 else -math.inf), (y0 if y0 > 0 else -math.inf)
+        x1 = x1 - 1 if x1 < cam.width_px else math.inf
+        y1 = y1 - 1 if y1 < cam.height_px else math.inf
         near = (v >= first - m) & (v <= last + m)
-        inside = (u - m >= x0) & (u + m <= x1 - 1) & (v - m >= y0) & (v + m <= y1 - 1)
+        inside = (u - m >= x0) & (u + m <= x1) & (v - m >= y0) & (v + m <= y1)
         return bool(np.any(near & ~inside))
 
     def focus_points(self, samples) -> np.ndarray | None:
