@@ -283,26 +283,21 @@ class Tracker:
     def focused_bands(self, f: int, spans, glints, flux, bands, times) -> list[GazeSample]:
         """The samples of frame f from the detections of a focused window (grouped:
         ``spans``, ``glints``, ``flux`` as :meth:`group` gives them), with the fallback: a band
-        where the last sample expects glints beyond the window's edge (:meth:`expects_glints`)
-        is done again (whatever its first pass gave: a band whose glints the window cut may
-        still be accepted, prior-assisted, from the few left), from the stream's state before it, on its rows' detections across the
-        frame's whole width (:meth:`GlintDetector.rows_of
-        <estimator.glints.GlintDetector.rows_of>`: exactly the whole frame's for the band;
-        where that strip had to be searched whole, the frame's later bands that fail take the
-        whole frame's detections)."""
+        where the last sample expects glints beyond the window's edge (:meth:`expects_glints`,
+        decided from the stream's state before the band) takes instead its rows' detections
+        across the frame's whole width (:meth:`GlintDetector.rows_of
+        <estimator.glints.GlintDetector.rows_of>`: the whole frame's detections of the band):
+        a band whose glints the window cut might otherwise fail, or be accepted
+        prior-assisted from the few left; :attr:`refocused` counts those bands."""
         flag, samples = self.flags_cut_glints, []
         for (a, b), band, t in zip(spans, bands, times):
-            before, counts = self.state, dict(self.counts)
-            sample = self.band(f, glints[a:b], band, t, flux[a:b] if flag else None)
-            if self.focus_fallback and self.expects_glints(before, band, t):
-                got = self.group(self.detector.rows_of(*band[1]), [band], self.lens_camera)
-                (a, b) = got[0][0]
-                self.state = before
-                self.counts.clear()
-                self.counts.update(counts)  # the band counts once, by its second pass
+            g, w = glints, flux
+            if self.focus_fallback and self.expects_glints(self.state, band, t):
+                strip, g, w = self.group(self.detector.rows_of(*band[1]), [band],
+                                         self.lens_camera)
+                (a, b), = strip  # the band's strobe of the strip's detections
                 self.refocused += 1
-                sample = self.band(f, got[1][a:b], band, t, got[2][a:b] if flag else None)
-            samples.append(sample)
+            samples.append(self.band(f, g[a:b], band, t, w[a:b] if flag else None))
         return samples
 
     def expects_glints(self, state: StreamState, band, time_s: float) -> bool:
