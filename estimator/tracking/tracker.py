@@ -326,7 +326,8 @@ class Tracker:
             return False
         if self._predicted[0] is not state.last:  # one prediction per accepted sample
             pred, visible = self.follower.predict(recent[0])
-            self._predicted = (state.last, pred[visible, 0], pred[visible, 1])
+            pred = self.lens_camera.distort_px(pred[visible])  # the window's (raw) pixels
+            self._predicted = (state.last, pred[:, 0], pred[:, 1])
         u, v = self._predicted[1], self._predicted[2]
         (first, last), (y0, y1, x0, x1) = band[1], self.detector.window
         cam = self.setup.camera  # a window's side on the frame's border holds all beyond it
@@ -338,10 +339,11 @@ class Tracker:
         return bool(np.any(near & ~inside))
 
     def focus_points(self, samples) -> np.ndarray | None:
-        """Where the next frame's glints are sought with ``focus_detection`` (k, 2): the
-        detections the accepted ``samples`` of this frame used, and every visible light's glint
-        predicted at the stream's last eye rotation (a light that comes into view next to the
-        others); None without an accepted sample (the next frame is searched whole)."""
+        """Where the next frame's glints are sought with ``focus_detection`` (k, 2, the
+        frame's pixels through the lens): the detections the accepted ``samples`` of this
+        frame used, and every visible light's glint predicted at the stream's last eye rotation
+        (a light that comes into view next to the others); None without an accepted sample
+        (the next frame is searched whole)."""
         used = [s.glints_px for s in samples if s.ok]
         if not used:
             return None
@@ -351,7 +353,9 @@ class Tracker:
             pred, visible = self.follower.predict(last.angles_rad)
             used.append(pred[visible & np.isfinite(pred).all(axis=1)])
             self._focus_angles = last.angles_rad
-        return np.concatenate(used)
+        # The samples' glints and the predictions are ideal (pinhole) pixels; the detector's
+        # window is in the frame's own, through the lens (the identity for a pinhole).
+        return self.lens_camera.distort_px(np.concatenate(used))
 
     @staticmethod
     def group(det, bands, camera=None) -> tuple[list, np.ndarray, np.ndarray]:

@@ -99,3 +99,25 @@ def test_the_fallbacks_strip_is_the_whole_frames_band(setup, stream):
     a = np.stack([strip.u_px[rows], strip.v_px[rows]], axis=1)
     b = np.stack([whole.u_px[near], whole.v_px[near]], axis=1)
     assert np.abs(a[np.lexsort(a.T)] - b[np.lexsort(b.T)]).max() < 1e-9
+
+
+def test_focused_detection_through_a_distorting_lens(setup):
+    """The window is placed in the frame's own pixels: with a strong barrel lens (glints drawn
+    where it puts them, tracked with it) the focused tracker windows every frame after the
+    first and its accepted samples are the whole-frame tracker's."""
+    from tests.estimator.test_camera_file_tracker import DIST, _frames
+    from dataclasses import replace
+    from estimator.lens import ideal_setup
+    lens = replace(setup, camera=replace(setup.camera, distortion=DIST))
+    frames, _ = _frames(setup, lens.camera, n=4)
+    cal = ground_truth_calibration(ideal_setup(lens))
+    out = {}
+    for focus in (False, True):
+        tr = Tracker(lens, cal, "polynomial", focus_detection=focus)
+        out[focus] = [s for f, img in enumerate(frames) for s in tr.process(img, f)]
+    assert tr.detector.windowed == len(frames) - 1
+    assert [s.ok for s in out[True]] == [s.ok for s in out[False]] and any(s.ok for s in out[True])
+    for a, b in zip(out[False], out[True]):
+        if a.ok:
+            assert np.array_equal(a.light_index, b.light_index)
+            assert np.abs(a.screen_xy_m - b.screen_xy_m).max() < FOCUS_SAME_SCREEN_M
