@@ -175,8 +175,8 @@ class GlintDetector:
         the whole frame gives for it (:func:`_detect`); a component that touches the strip's
         top or bottom edge inside the frame is dropped, as the focused window drops those
         touching its edge (a glint lit by the band lies wholly within the strip). Only after a
-        frame searched in a window (:attr:`window` not None): the tracker's fallback where a
-        band the prior expects glints in fails on the window's detections."""
+        frame searched in a window (:attr:`window` not None): the tracker's fallback for a
+        band where its last sample expects glints beyond the window's edge."""
         if self._last is None:
             raise ValueError("rows_of: the last frame was searched whole already")
         img, frame_index = self._last

@@ -107,8 +107,8 @@ class Tracker:
         whole-frame search every 30 frames, after a frame without an accepted sample or a
         dropped one, and where the window holds nothing. With its fallback
         (:meth:`focused_bands`, :attr:`focus_fallback`): a band where the last sample expects
-        glints beyond the window's edge, or that has no recent sample to bound the eye, is
-        done again on its rows across the whole width. Clutter far from the eye is not
+        glints beyond the window's edge, or that has no recent sample to bound the eye,
+        takes its rows' detections across the whole width. Clutter far from the eye is not
         detected. Off by default: bands of clutter alone then fail as
         ``match_too_few_glints`` rather than ``band_out_of_reach`` or
         ``prior_no_hypothesis``; the accepted samples were the whole frame's (same bands and
@@ -139,7 +139,7 @@ class Tracker:
         With ``focus_detection``: whether the fallback runs (True; False measures the window
         alone, ``benchmarks/bench_focus.py``).
     refocused : int
-        Bands done again by the fallback.
+        Bands that took their strip's detections (the fallback).
     """
 
     def __init__(self, setup: Setup, calibration: Calibration, method: str = "polynomial", *,
