@@ -9,8 +9,8 @@ Three trackers on the same decoded frames of each dataset, both gaze methods:
 - ``focus``: ``Tracker(focus_detection=True)`` without the fallback
   (``tracker.focus_fallback = False``): each frame searched only around the glints the last
   frame's accepted samples used and those predicted at the last eye rotation;
-- ``fallback``: ``Tracker(focus_detection=True)`` as it runs: a band that fails where the last
-  sample expects glints in its rows is done again on the whole frame's detections
+- ``fallback``: ``Tracker(focus_detection=True)`` as it runs: a band where the last sample
+  expects glints beyond the window's edge takes its rows' detections across the whole width
   (:meth:`estimator.tracking.Tracker.focused_bands`).
 
 Printed per dataset and method:
@@ -24,7 +24,7 @@ Printed per dataset and method:
   differ, each listed as frame/pulse with both reasons and lights;
 - **frames/s** of each tracker (tracking alone, frames decoded beforehand, the process's CPU
   time), the three alternated over ``--rounds`` rounds, the range of the rounds and the ratio
-  to ``whole`` per round; the fallback's redone bands and whole-frame detections.
+  to ``whole`` per round; the bands the fallback gave their strip's detections ("redone").
 
 Usage::
 

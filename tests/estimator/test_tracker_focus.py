@@ -58,11 +58,11 @@ def track(setup, imgs, focus: bool, fallback: bool = True):
 def test_focused_detection_with_the_fallback_gives_the_whole_frames_accepted_samples(
         setup, stream):
     """Every band the whole-frame tracker accepts, the focused one accepts with the same lights
-    and the same screen point (to FOCUS_SAME_SCREEN_M), and no other: after the saccade a
-    glint lies outside the (too tight) window, the band fails there and, the last sample
-    expecting glints beyond the window's edge, is done again on its rows across the whole
-    width (the fallback). Without the fallback the focused tracker loses a band of the
-    saccade's frame."""
+    and the same screen point (to FOCUS_SAME_SCREEN_M), and no other: after the saccade
+    glints lie outside the (too tight) window; the last sample expecting glints beyond the
+    window's edge, those bands take their rows' detections across the whole width (the
+    fallback). Without the fallback the focused tracker loses a band of the saccade's frame
+    (and accepts another prior-assisted from the 2 of its 5 glints left in the window)."""
     whole, _ = track(setup, stream, focus=False)
     focused, tr = track(setup, stream, focus=True)
     bare, _ = track(setup, stream, focus=True, fallback=False)
