@@ -61,8 +61,8 @@ def test_focused_detection_with_the_fallback_gives_the_whole_frames_accepted_sam
     and the same screen point (to FOCUS_SAME_SCREEN_M), and no other: after the saccade
     glints lie outside the (too tight) window; the last sample expecting glints beyond the
     window's edge, those bands take their rows' detections across the whole width (the
-    fallback). Without the fallback the focused tracker loses a band of the saccade's frame
-    (and accepts another prior-assisted from the 2 of its 5 glints left in the window)."""
+    fallback). Without the fallback the focused tracker loses two bands of the saccade's
+    frame and accepts another prior-assisted from the 2 of its 5 glints left in the window."""
     whole, _ = track(setup, stream, focus=False)
     focused, tr = track(setup, stream, focus=True)
     bare, _ = track(setup, stream, focus=True, fallback=False)
@@ -77,6 +77,8 @@ def test_focused_detection_with_the_fallback_gives_the_whole_frames_accepted_sam
     assert tr.refocused > 0 and tr.detector.strips == tr.refocused
     assert tr.detector.windowed >= len(stream) - 2  # the first frame and at most one more whole
     assert sum(s.ok for s in bare if s.frame_index == 4) < sum(o for o, a in zip(ok, at) if a)
+    assert any(a.ok and b.ok and b.light_index.size < a.light_index.size
+               for a, b in zip(whole, bare))  # a band the window cut, accepted from the rest
 
 
 def test_the_fallbacks_strip_is_the_whole_frames_band(setup, stream):
