@@ -20,10 +20,10 @@ from .params import (
     GlintDetections,
     undistort_points_px,
 )
-from .sequence import GlintDetector, window_margin_px
+from .sequence import STRIP_PAD_PX, GlintDetector, glint_px_per_deg, window_margin_px
 
 __all__ = [
     "detect_glints", "SATURATED", "CUT_BY_BAND_EDGE", "TWO_PULSES", "IMAGE_EDGE", "NO_BAND",
     "BLENDED", "FLAG_NAMES", "DetectionParams", "GlintDetections", "GlintDetector",
-    "window_margin_px", "undistort_points_px"
+    "window_margin_px", "glint_px_per_deg", "STRIP_PAD_PX", "undistort_points_px"
 ]

@@ -15,6 +15,11 @@ from .detector import _detect, _full_scale_and_black, _prepare
 from .noise import _NOISE_STEP, _NoiseModel
 from .params import DetectionParams, GlintDetections
 
+#: Rows a band's strip (:meth:`GlintDetector.rows_of`) reaches beyond the band's own: a glint
+#: lit by the band has its centroid in the band's rows and its pixels within 8 px of it (a
+#: saturated glint's bloom, radius ~5.6 px; :class:`DetectionParams` ``max_area_px``).
+STRIP_PAD_PX = 8
+
 
 class GlintDetector:
     """:func:`detect_glints` over the frames of one sequence: the noise model of step 2 is
@@ -102,6 +107,8 @@ class GlintDetector:
             raise ValueError(f"refresh_frames must be an integer >= 1, got {refresh_frames!r}")
         if not level_drift > 0:
             raise ValueError(f"level_drift must be positive, got {level_drift!r}")
+        #: The most a glint moves per degree of eye rotation (:func:`glint_px_per_deg`).
+        self.px_per_deg = glint_px_per_deg(setup)
         if roi_margin_px is None:
             roi_margin_px = window_margin_px(setup, eye_speed_deg_s)
         if isinstance(roi_margin_px, bool) or not isinstance(roi_margin_px, (int, np.integer)) \
@@ -120,6 +127,8 @@ class GlintDetector:
         self._dtype = None
         self._age = 0
         self._box: tuple | None = None  # (v min, v max, u min, u max) of the glints found
+        self._last: tuple | None = None  # (checked frame, index) of the last windowed frame
+        self.strips = 0  # band strips searched again (rows_of)
 
     def reset(self) -> None:
         """Forget the noise model and the glints: the next frame measures its own model and
@@ -155,8 +164,26 @@ class GlintDetector:
         self.frames += 1
         self.windowed += window is not None
         self.window = window
+        self._last = (img, frame_index) if window is not None else None
         self._grow(det, whole=window is None)
         return det
+
+    def rows_of(self, first: int, last: int) -> GlintDetections:
+        """The last frame's detections in rows ``first`` .. ``last`` (a band's) and
+        :data:`STRIP_PAD_PX` rows either side, searched again across the frame's whole width
+        with the noise model its window was searched with: every detection is exactly what
+        the whole frame gives for it (:func:`_detect`); a component that touches the strip's
+        top or bottom edge inside the frame is dropped, as the focused window drops those
+        touching its edge (a glint lit by the band lies wholly within the strip). Only after a
+        frame searched in a window (:attr:`window` not None): the tracker's fallback for a
+        band where its last sample expects glints beyond the window's edge."""
+        if self._last is None:
+            raise ValueError("rows_of: the last frame was searched whole already")
+        img, frame_index = self._last
+        self.strips += 1
+        y0, y1 = max(int(first) - STRIP_PAD_PX, 0), min(int(last) + 1 + STRIP_PAD_PX, img.shape[0])
+        return _detect(img, self.setup, frame_index, self.params, self._noise,
+                       (y0, y1, 0, img.shape[1]), drop_cut=True)[0]
 
     def _window(self, shape) -> tuple[int, int, int, int] | None:
         if not self.track_roi or self._box is None:
@@ -202,12 +229,18 @@ class GlintDetector:
 
 def window_margin_px(setup: Setup, eye_speed_deg_s: float = EYE_SPEED_MAX_DEG_S) -> int:
     """How far (px, rounded up) any glint of ``setup`` moves in one frame period while the
-    eye turns at ``eye_speed_deg_s`` in any direction: the largest singular value of each
-    glint's 2 x 2 Jacobian in the Fick angles, by central differences of the closed-form
-    projection (±0.5°) at primary gaze, the largest over the glints, times the angle turned
-    in one frame. paper_sim: 3.6 px per degree, 10° per frame at 60 fps, 36 px."""
+    eye turns at ``eye_speed_deg_s`` in any direction: :func:`glint_px_per_deg` times the angle
+    turned in one frame. paper_sim: 3.6 px per degree, 10° per frame at 60 fps, 36 px."""
     if not eye_speed_deg_s > 0:
         raise ValueError(f"eye_speed_deg_s must be positive, got {eye_speed_deg_s!r}")
+    return math.ceil(glint_px_per_deg(setup) * eye_speed_deg_s * setup.sensor.frame_period_s)
+
+
+def glint_px_per_deg(setup: Setup) -> float:
+    """The most any glint of ``setup`` moves on the image per degree of eye rotation (px/deg),
+    in any direction: the largest singular value of each glint's 2 x 2 Jacobian in the Fick
+    angles, by central differences of the closed-form projection (±0.5°) at primary gaze,
+    the largest over the glints."""
     eye, h = setup.eye, math.radians(0.5)
     yaw = np.array([h, -h, 0.0, 0.0])
     pitch = np.array([0.0, 0.0, h, -h])
@@ -218,5 +251,4 @@ def window_margin_px(setup: Setup, eye_speed_deg_s: float = EYE_SPEED_MAX_DEG_S)
     if not seen.any():
         raise ValueError(f"setup {setup.name!r}: no glint is visible at primary gaze")
     jac = np.stack([g[0] - g[1], g[2] - g[3]], axis=-1)[seen] / (2 * math.degrees(h))  # px/deg
-    per_deg = float(np.linalg.norm(jac, ord=2, axis=(1, 2)).max())
-    return math.ceil(per_deg * eye_speed_deg_s * setup.sensor.frame_period_s)
+    return float(np.linalg.norm(jac, ord=2, axis=(1, 2)).max())

@@ -36,6 +36,7 @@ holds. Folders of frames (rendered datasets, prototype captures) are read and tr
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import replace
 
 import numpy as np
@@ -43,7 +44,9 @@ import numpy as np
 from ..banding import band_rows, strobe_instant
 from ..calibration import Calibration
 from ..gaze import calibrated_problems
-from ..glints import NO_BAND, DetectionParams, GlintDetector, undistort_points_px
+from ..eye import EYE_SPEED_MAX_DEG_S
+from ..glints import (NO_BAND, STRIP_PAD_PX, DetectionParams, GlintDetector, glint_px_per_deg,
+                      undistort_points_px)
 from ..lens import ideal_setup
 from ..matching import BandFollower, FollowParams, GlintMatcher, MatchParams
 from ..reasons import Reason, flux_cut_failure, internal_error
@@ -52,7 +55,7 @@ from .bands import band_sample
 from .context import METHODS, MIN_GLINTS, BandContext
 from .cut_glints import flagged, kept_detections
 from .samples import BandPrior, GazeSample, failed_sample
-from .state import StreamState
+from .state import JUMP_SLACK_DEG, StreamState
 
 __all__ = ["Tracker", "SATURATED_FRAME_SHARE"]
 
@@ -99,13 +102,19 @@ class Tracker:
     focus_detection : bool
         Search each frame for glints only around the glints its last frame's accepted samples
         used and those predicted at the last eye rotation (:meth:`focus_points`,
-        :class:`estimator.glints.GlintDetector` ``focus``; a whole-frame search every 30
-        frames, after a frame without an accepted sample or a dropped one, and where the
-        window holds nothing): clutter far from the eye is not detected. Off by default: bands
-        of clutter alone then fail as ``match_too_few_glints`` rather than
-        ``band_out_of_reach``, and a glint that appears outside the window waits for the next
-        whole-frame search (none did on the rendered datasets measured,
-        ``hardware/README.md``).
+        :class:`estimator.glints.GlintDetector` ``focus``), grown by how far a glint moves
+        while the eye turns by the plausibility check's reach over one frame period; a
+        whole-frame search every 30 frames, after a frame without an accepted sample or a
+        dropped one, and where the window holds nothing. With its fallback
+        (:meth:`focused_bands`, :attr:`focus_fallback`): a band where the last sample expects
+        glints beyond the window's edge, or that has no recent sample to bound the eye,
+        takes its rows' detections across the whole width. Clutter far from the eye is not
+        detected. Off by default: bands of clutter alone then fail as
+        ``match_too_few_glints`` rather than ``band_out_of_reach`` or
+        ``prior_no_hypothesis``; the accepted samples were the whole frame's (same bands and
+        lights, estimates within 1.3e-8 m on the screen: the window's centroids differ in the
+        last bits) on every rendered dataset measured (``benchmarks/bench_focus.py``,
+        ``docs/results/benchmarks.md``, issue 31's fifth pass).
 
     Attributes
     ----------
@@ -126,6 +135,11 @@ class Tracker:
         Dense bands identified by the cheap path ("cheap"), by the hypothesis search
         ("search"), left to the prior unsearched ("unfillable"); bands done again without cut
         glints ("again").
+    focus_fallback : bool
+        With ``focus_detection``: whether the fallback runs (True; False measures the window
+        alone, ``benchmarks/bench_focus.py``).
+    refocused : int
+        Bands that took their strip's detections (the fallback).
     """
 
     def __init__(self, setup: Setup, calibration: Calibration, method: str = "polynomial", *,
@@ -153,7 +167,16 @@ class Tracker:
         setup = ideal_setup(setup)
         # Detection reuses the sensor's noise model from frame to frame (measured again every
         # 30 frames, on a 5 % level drift, and after every reset of the stream).
-        self.detector = GlintDetector(setup, detection, focus=focus_detection)
+        # Focused: the window's margin is how far a glint moves while the eye turns by the
+        # plausibility check's reach over one frame period (expects_glints' bound), so a band
+        # of the next frame finds its glints inside it.
+        margin = None
+        if focus_detection:
+            speed = EYE_SPEED_MAX_DEG_S if prior is None else prior.eye_speed_max_deg_s
+            turn = speed * math.sqrt(2.0) * setup.sensor.frame_period_s + JUMP_SLACK_DEG
+            margin = math.ceil(glint_px_per_deg(setup) * turn) + STRIP_PAD_PX
+        self.detector = GlintDetector(setup, detection, focus=focus_detection,
+                                      roi_margin_px=margin)
         # Glints predicted from the calibrated geometry, not the nominal one: the lighting pose
         # of the prototype is off by millimetres (a pixel or more per glint). One set of
         # calibrated fit problems for the stream: the matcher's orbit fits and the gaze fits of
@@ -170,6 +193,10 @@ class Tracker:
         self.counts = {"cheap": 0, "search": 0, "unfillable": 0, "again": 0}
         #: The last frame index taken (a frame not after it is ``frame_out_of_order``).
         self.last_frame_index: int | None = None
+        self.focus_fallback = True
+        self.refocused = 0
+        self._predicted = (None, None, None)  # (last estimate, u, v) of expects_glints
+        self._focus_angles = None  # the rotation focus_points predicted the window's glints at
         self.reset()
 
     # The context's parts under their old names (read-only).
@@ -239,7 +266,9 @@ class Tracker:
             spans, glints, flux = self.group(det, bands, self.lens_camera)
             flag = self.flags_cut_glints
             samples = [self.band(frame_index, glints[a:b], band, t, flux[a:b] if flag else None)
-                       for (a, b), band, t in zip(spans, bands, times)]
+                       for (a, b), band, t in zip(spans, bands, times)] \
+                if self.detector.window is None or not self.detector.focus else \
+                self.focused_bands(frame_index, spans, glints, flux, bands, times)
             if self.detector.focus:
                 self.detector.focus_on(self.focus_points(samples))
             return samples
@@ -251,19 +280,82 @@ class Tracker:
             return [failed_sample(frame_index, j, t, internal_error(exc))
                     for (j, _), t in zip(bands, times)]
 
+    def focused_bands(self, f: int, spans, glints, flux, bands, times) -> list[GazeSample]:
+        """The samples of frame f from the detections of a focused window (grouped:
+        ``spans``, ``glints``, ``flux`` as :meth:`group` gives them), with the fallback: a band
+        where the last sample expects glints beyond the window's edge (:meth:`expects_glints`,
+        decided from the stream's state before the band) takes instead its rows' detections
+        across the frame's whole width (:meth:`GlintDetector.rows_of
+        <estimator.glints.GlintDetector.rows_of>`: the whole frame's detections of the band):
+        a band whose glints the window cut might otherwise fail, or be accepted
+        prior-assisted from the few left; :attr:`refocused` counts those bands."""
+        flag, samples = self.flags_cut_glints, []
+        for (a, b), band, t in zip(spans, bands, times):
+            g, w = glints, flux
+            if self.focus_fallback and self.expects_glints(self.state, band, t):
+                strip, g, w = self.group(self.detector.rows_of(*band[1]), [band],
+                                         self.lens_camera)
+                (a, b), = strip  # the band's strobe of the strip's detections
+                self.refocused += 1
+            samples.append(self.band(f, g[a:b], band, t, w[a:b] if flag else None))
+        return samples
+
+    def expects_glints(self, state: StreamState, band, time_s: float) -> bool:
+        """Whether a focused band (pulse j, (first row, last row)) at ``time_s`` may hold
+        glints the window (:attr:`GlintDetector.window <estimator.glints.GlintDetector>`)
+        left out: the stream has no sample recent enough to bound the eye
+        (:meth:`BandContext.recent <estimator.tracking.BandContext.recent>`), or a visible
+        light's glint predicted at the last sample's rotation comes within reach of the
+        band's rows and there within reach of the window's edge. Reach: as far as a glint
+        moves while the eye turns by that sample's reach (the detector's ``px_per_deg`` times
+        the furthest the eye turns since, with the plausibility check's slack), plus a glint's
+        radius (:data:`STRIP_PAD_PX`). Where the last rotation is close enough to the one
+        the window's glints were predicted at (:meth:`focus_points`) that the window's margin
+        holds that reach, the answer is no without a prediction (a light that comes into view
+        since, away from the others, is then not looked for: it waits, as in the plain
+        window, for the next whole-frame search)."""
+        recent = self.context.recent(state, time_s)
+        if recent is None or self.follower is None:
+            return True
+        m = self.detector.px_per_deg * math.degrees(recent[3]) + STRIP_PAD_PX
+        r0 = self._focus_angles
+        if r0 is not None and self.detector.px_per_deg * math.degrees(math.hypot(
+                recent[0][0] - r0[0], recent[0][1] - r0[1])) + m <= self.detector.roi_margin_px:
+            # The window holds every glint predicted at r0 grown by its margin: those at the
+            # last rotation lie within px_per_deg |r - r0| of them (no prediction needed).
+            return False
+        if self._predicted[0] is not state.last:  # one prediction per accepted sample
+            pred, visible = self.follower.predict(recent[0])
+            pred = self.lens_camera.distort_px(pred[visible])  # the window's (raw) pixels
+            self._predicted = (state.last, pred[:, 0], pred[:, 1])
+        u, v = self._predicted[1], self._predicted[2]
+        (first, last), (y0, y1, x0, x1) = band[1], self.detector.window
+        cam = self.setup.camera  # a window's side on the frame's border holds all beyond it
+        x0, y0 = (x0 if x0 > 0 else -math.inf), (y0 if y0 > 0 else -math.inf)
+        x1 = x1 - 1 if x1 < cam.width_px else math.inf
+        y1 = y1 - 1 if y1 < cam.height_px else math.inf
+        near = (v >= first - m) & (v <= last + m)
+        inside = (u - m >= x0) & (u + m <= x1) & (v - m >= y0) & (v + m <= y1)
+        return bool(np.any(near & ~inside))
+
     def focus_points(self, samples) -> np.ndarray | None:
-        """Where the next frame's glints are sought with ``focus_detection`` (k, 2): the
-        detections the accepted ``samples`` of this frame used, and every visible light's glint
-        predicted at the stream's last eye rotation (a light that comes into view next to the
-        others); None without an accepted sample (the next frame is searched whole)."""
+        """Where the next frame's glints are sought with ``focus_detection`` (k, 2, the
+        frame's pixels through the lens): the detections the accepted ``samples`` of this
+        frame used, and every visible light's glint predicted at the stream's last eye rotation
+        (a light that comes into view next to the others); None without an accepted sample
+        (the next frame is searched whole)."""
         used = [s.glints_px for s in samples if s.ok]
         if not used:
             return None
         last = self.state.last
+        self._focus_angles = None
         if self.follower is not None and last is not None:
             pred, visible = self.follower.predict(last.angles_rad)
             used.append(pred[visible & np.isfinite(pred).all(axis=1)])
-        return np.concatenate(used)
+            self._focus_angles = last.angles_rad
+        # The samples' glints and the predictions are ideal (pinhole) pixels; the detector's
+        # window is in the frame's own, through the lens (the identity for a pinhole).
+        return self.lens_camera.distort_px(np.concatenate(used))
 
     @staticmethod
     def group(det, bands, camera=None) -> tuple[list, np.ndarray, np.ndarray]:
