@@ -251,11 +251,12 @@ def cmd_track(args) -> int:
     finally:
         bar.close()
     if args.events is not None:  # issue 34: saccades and microsaccades beside the samples
-        from estimator.events import events_from_samples_csv
+        from estimator.events import NO_GATE, SampleGate, events_from_samples_csv
 
-        events = events_from_samples_csv(summary.path, setup, args.events)
-        print(f"{events.count} events ({int((events.kind == 'saccade').sum())} saccades) "
-              f"written to {args.events}")
+        gate = NO_GATE if args.events_ungated else SampleGate()
+        events, left_out = events_from_samples_csv(summary.path, setup, args.events, gate=gate)
+        print(f"{events.count} events ({int((events.kind == 'saccade').sum())} saccades) written "
+              f"to {args.events}; {left_out} samples left out as poor fits")
     print(f"{len(summary.samples)} gaze samples from {summary.frames} frames "
           f"({summary.n_ok} estimated) written to {summary.path}")
     print(f"throughput: {summary.samples_per_s:.0f} samples/s, "
@@ -414,9 +415,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", type=Path, required=True, help="samples CSV")
     p.add_argument("--events", type=Path, default=None,
                    help="also write the saccades and microsaccades found in the samples to this "
-                        "CSV (format scet-events 1: onset_s, offset_s, amplitude_deg, "
-                        "peak_velocity_deg_s, kind, onset/offset_uncertainty_s; "
-                        "estimator.events)")
+                        "CSV (format scet-events 1; estimator.events), leaving out poor fits")
+    p.add_argument("--events-ungated", action="store_true",
+                   help="with --events: keep the poor fits (estimator.events.quality) too")
     p.add_argument("--follow", action="store_true",
                    help="track the frames as they are written (live): stop on an 'end' file, a "
                         "dataset's last frame or --timeout seconds without a new frame")

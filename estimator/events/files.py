@@ -23,6 +23,7 @@ import numpy as np
 from ..errors import TrackerInputError
 from ..formats import atomic_write
 from .detect import EventParams, Events, detect_events, gaze_angles_deg
+from .quality import SampleGate, left_out
 
 EVENTS_FORMAT = "scet-events"
 EVENTS_VERSION = 1
@@ -30,17 +31,29 @@ EVENT_COLUMNS = ("onset_s", "offset_s", "amplitude_deg", "peak_velocity_deg_s", 
                  "onset_uncertainty_s", "offset_uncertainty_s")
 
 
-def gaze_from_samples_csv(path, setup) -> tuple[np.ndarray, np.ndarray]:
+def gaze_from_samples_csv(path, setup, *, gate: SampleGate | None = None
+                          ) -> tuple[np.ndarray, np.ndarray]:
     """(n,) sample times (s) and (n, 2) gaze Fick angles (deg, NaN for failed samples) of a
     samples CSV (:func:`estimator.tracking.read_samples_csv`), the gaze from the setup's eye
-    rotation centre to the screen point.
+    rotation centre to the screen point. With a ``gate`` the samples it leaves out
+    (:func:`estimator.events.quality.left_out`, from the ``n_glints``, ``prior`` and
+    ``residual_px`` columns and the gaze) are NaN too.
 
     Raises
     ------
     TrackerInputError
         Naming the file and row: no ``time_s`` column, a time that is not a finite number,
-        times out of order or repeated, or no valid sample at all.
+        times out of order or repeated, no valid sample at all, or (with a ``gate``) a
+        ``n_glints`` or ``residual_px`` that is not a number.
     """
+    t, pos, rows = _gaze_and_rows(path, setup)
+    if gate is not None:
+        pos[samples_left_out(rows, t, pos, gate, path)] = np.nan
+    return t, pos
+
+
+def _gaze_and_rows(path, setup):
+    """:func:`gaze_from_samples_csv` without a gate, and the CSV's rows."""
     from ..tracking import read_samples_csv
 
     path = Path(path)
@@ -76,7 +89,43 @@ def gaze_from_samples_csv(path, setup) -> tuple[np.ndarray, np.ndarray]:
                                 "gaze to find events in", path=path)
     pos = np.full((len(rows), 2), np.nan)
     pos[ok] = gaze_angles_deg(xy[ok], setup.eye.rotation_center_m, setup.screen.z_m)
-    return t, pos
+    return t, pos, rows
+
+
+def samples_left_out(rows, time_s, position_deg, gate: SampleGate, path) -> np.ndarray:
+    """(n,) bool: :func:`~estimator.events.quality.left_out` of a samples CSV's rows (as
+    :func:`estimator.tracking.read_samples_csv` gives them), their times (n,) s and gaze
+    (n, 2) deg (NaN where the tracker gave none).
+
+    Raises
+    ------
+    TrackerInputError
+        Naming the file, line and column of a ``n_glints``, ``prior`` or ``residual_px`` that
+        is missing or not a number.
+    """
+    for col in ("n_glints", "prior", "residual_px"):
+        if rows and col not in rows[0]:
+            raise TrackerInputError(f"no column '{col}': the event gate needs the tracker's "
+                                    "n_glints, prior and residual_px", path=path, key=col)
+    n = np.empty(len(rows))
+    prior = np.empty(len(rows), dtype=bool)
+    res = np.empty(len(rows))
+    for i, r in enumerate(rows):
+        try:
+            n[i] = float(r["n_glints"])
+            res[i] = float(r["residual_px"])
+            if r["prior"] not in ("0", "1"):
+                raise ValueError
+            prior[i] = r["prior"] == "1"
+        except (TypeError, ValueError):
+            raise TrackerInputError(f"line {i + 3}: n_glints and residual_px must be numbers and "
+                                    f"prior 0 or 1, got {r.get('n_glints')!r}, "
+                                    f"{r.get('residual_px')!r}, {r.get('prior')!r}",
+                                    path=path) from None
+    try:
+        return left_out(time_s, position_deg, n, prior, res, gate, source=str(path))
+    except ValueError as e:
+        raise TrackerInputError(str(e), path=path, key="n_glints") from None
 
 
 def events_csv(events: Events) -> str:
@@ -123,9 +172,17 @@ def write_events_csv(path, events: Events) -> Path:
 
 
 def events_from_samples_csv(samples_path, setup, events_path,
-                            params: EventParams = EventParams()) -> Events:
-    """``scet track --events``: detect the events of a samples CSV and write them beside it."""
-    t, pos = gaze_from_samples_csv(samples_path, setup)
+                            params: EventParams = EventParams(),
+                            gate: SampleGate | None = SampleGate()) -> tuple[Events, int]:
+    """``scet track --events``: detect the events of a samples CSV and write them beside it,
+    leaving out the samples ``gate`` flags as poor fits (None: none). Returns the events and
+    how many samples with a gaze estimate were left out."""
+    t, pos, rows = _gaze_and_rows(samples_path, setup)
+    left_out = 0
+    if gate is not None:
+        poor = samples_left_out(rows, t, pos, gate, samples_path)
+        pos[poor] = np.nan
+        left_out = int(poor.sum())
     events = detect_events(t, pos, params, source=str(samples_path))
     write_events_csv(events_path, events)
-    return events
+    return events, left_out

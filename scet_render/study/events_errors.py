@@ -9,7 +9,8 @@ true eye speed (:data:`RESIDUAL_SPEEDS_DEG_S`): that keeps their distribution an
 with speed, not their order in time. :func:`residuals_by_speed` puts them on the renders' own
 bands (the rendered comparison's third twin); :func:`goal_with_rendered_errors` on the goal
 setting's simulated trajectories, so that the study's goals are also measured with the errors
-the renders make.
+the renders make. The renders' poor fits (:mod:`estimator.events.quality`) are drawn as often
+as they occur at each speed, and the event gate runs on the drawn stream as on the renders.
 """
 
 from __future__ import annotations
@@ -34,17 +35,23 @@ def eye_speed_deg_s(traj, t) -> np.ndarray:
     return np.degrees(np.hypot(y1 - y0, p1 - p0)) / (2 * h)
 
 
-def draw_errors(speed, valid, pool_speed, pool_err, rng) -> np.ndarray:
+def draw_errors(speed, valid, pool_speed, pool_err, rng, pool_poor=None):
     """(n, 2) deg: for each ``valid`` sample an error drawn from ``pool_err`` (m, 2) among
     those whose ``pool_speed`` (m,) lies in the same band of :data:`RESIDUAL_SPEEDS_DEG_S`
-    as its ``speed``; NaN elsewhere (and where that band holds no error)."""
+    as its ``speed``; NaN elsewhere (and where that band holds no error). With ``pool_poor``
+    (m,) bool (the renders' poor fits, :func:`estimator.events.quality.poor_fits`), also the
+    (n,) bool of the draws that were poor fits: (errors, poor)."""
     out = np.full((np.asarray(speed).size, 2), np.nan)
+    poor = np.zeros(out.shape[0], dtype=bool)
     for lo, hi in zip(RESIDUAL_SPEEDS_DEG_S[:-1], RESIDUAL_SPEEDS_DEG_S[1:]):
         m = valid & (speed >= lo) & (speed < hi)
         src = np.flatnonzero((pool_speed >= lo) & (pool_speed < hi))
         if m.any() and src.size:
-            out[m] = pool_err[rng.choice(src, int(m.sum()))]
-    return out
+            pick = rng.choice(src, int(m.sum()))
+            out[m] = pool_err[pick]
+            if pool_poor is not None:
+                poor[m] = np.asarray(pool_poor)[pick]
+    return out if pool_poor is None else (out, poor)
 
 
 def rendered_errors(traj, t, pos, truth_pos, ok) -> tuple[np.ndarray, np.ndarray]:
@@ -64,18 +71,23 @@ def residuals_by_speed(traj, t, pos, truth_pos, ok, rng) -> np.ndarray:
 
 def goal_with_rendered_errors(setup, traj, t, pos, truth_pos, ok, seed: int, *, score,
                               noise_sd_deg: float, counts: tuple, detectors=("scet", "ivt"),
-                              seeds=GOAL_ERROR_SEEDS) -> dict:
+                              seeds=GOAL_ERROR_SEEDS, poor=None) -> dict:
     """The goal setting (``setup``, the designed lighting, at 16 pulses and S = 524) of the
     study's trajectories
     ``seeds`` (:func:`~scet_render.study.events_sim.study_trajectory`, 200 saccades and 100
     microsaccades each), its valid bands as the simulator makes them, scored by each
     detector pooled over the seeds, with the simulator's Gaussian noise and with errors drawn
-    from the rendered sub-sequence's (``traj``, ``t``, ``pos``, ``truth_pos``, ``ok``):
+    from the rendered sub-sequence's (``traj``, ``t``, ``pos``, ``truth_pos``, ``ok``; with
+    ``poor`` (n,) bool, the renders' poor fits, each drawn stream is gated as the event gate
+    gates a stream: a drawn poor fit that disagrees with its neighbours is a NaN band):
     {detector: {"gaussian": summary, "rendered errors": summary}}."""
+    from estimator.events.quality import disagree_with_neighbours
+
     from .events_score import pool, summarise
     from .events_sim import band_setting, simulate_stream, study_trajectory
 
     pool_speed, pool_err = rendered_errors(traj, t, pos, truth_pos, ok)
+    pool_poor = None if poor is None else np.asarray(poor, dtype=bool)[ok]
     sd = noise_sd_deg
     got = {d: {"gaussian": [], "rendered errors": []} for d in detectors}
     for s in seeds:
@@ -86,7 +98,13 @@ def goal_with_rendered_errors(setup, traj, t, pos, truth_pos, ok, seed: int, *, 
                                  tr.duration_s, s)
         rng = np.random.default_rng(np.random.SeedSequence([seed, 343, s]))
         valid = np.isfinite(p0).all(axis=1)
-        pr = p0 + draw_errors(eye_speed_deg_s(tr, t0), valid, pool_speed, pool_err, rng)
+        if pool_poor is None:
+            pr = p0 + draw_errors(eye_speed_deg_s(tr, t0), valid, pool_speed, pool_err, rng)
+        else:  # the event gate on the drawn stream: the draws' flags, its own neighbours
+            err, flagged = draw_errors(eye_speed_deg_s(tr, t0), valid, pool_speed, pool_err,
+                                       rng, pool_poor)
+            pr = p0 + err
+            pr[disagree_with_neighbours(t0, pr, flagged)] = np.nan
         for d in detectors:
             got[d]["gaussian"].append(score(st, tr, tg, pg, d)[0])
             got[d]["rendered errors"].append(score(st, tr, t0, pr, d)[0])
@@ -106,7 +124,8 @@ def rendered_errors_table(rendered, names: dict, met) -> str:
     keys = [k for k in MEASURES if k in GOALS]
     out = ("The goal setting's trajectories (seeds " + ", ".join(map(str, GOAL_ERROR_SEEDS))
            + ", pooled) with each valid band's error drawn from the rendered sub-sequence's own "
-           "errors at the same eye speed, beside the simulator's Gaussian noise of the same "
+           "errors at the same eye speed (the renders' poor fits drawn with them, and the event "
+           "gate run on the drawn stream), beside the simulator's Gaussian noise of the same "
            "bands:\n\n| detector | errors | " + " | ".join(MEASURES[k] for k in keys)
            + " |\n|---|---|" + "---|" * len(keys) + "\n")
     for det, per in g.items():

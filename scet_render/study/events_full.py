@@ -370,12 +370,22 @@ def cli_conditions(rows) -> list:
     return out
 
 
-def sample_reasons(folder: Path, frames: int) -> list:
+def sample_reasons(folder: Path, frames: int, t, pos) -> tuple[list, np.ndarray, np.ndarray]:
     """The ``reason`` column of the tracked rendered samples CSV, in its row order (the order
-    of :func:`estimator.events.gaze_from_samples_csv`'s samples)."""
+    of :func:`estimator.events.gaze_from_samples_csv`'s samples, times ``t`` (n,) and gaze
+    ``pos`` (n, 2)), which samples the event gate's first step flags as poor fits, and which
+    it leaves out (:mod:`estimator.events.quality`)."""
+    from estimator.events import SampleGate
+    from estimator.events.files import samples_left_out
     from estimator.tracking import read_samples_csv
 
-    return [r["reason"] for r in read_samples_csv(Path(folder) / f"samples_{frames}.csv")]
+    path = Path(folder) / f"samples_{frames}.csv"
+    rows = read_samples_csv(path)
+    if len(rows) != np.asarray(t).size:
+        raise ValueError(f"{path}: {len(rows)} rows for {np.asarray(t).size} samples")
+    flagged = samples_left_out(rows, t, pos, replace(SampleGate(), neighbour_check=False), path)
+    return ([r["reason"] for r in rows], flagged,
+            samples_left_out(rows, t, pos, SampleGate(), path))
 
 
 def invalid_reasons(reasons) -> list:
@@ -409,7 +419,8 @@ def band_agreement(t, ok_rendered, ts, ok_simulated, reasons) -> dict:
 
 
 #: A rendered sample further than this many noise SDs from the truth is an outlier (a
-#: misidentified band): counted in the report, left in the samples the detectors see.
+#: misidentified band): counted in the report; the detectors see the samples less the event
+#: gate's poor fits (:mod:`estimator.events.quality`), which hold most of them.
 OUTLIER_SDS = 5.0
 
 
@@ -433,33 +444,39 @@ def rendered_comparison(scene, out_dir: Path, seed: int, *, render: bool):
     d -= np.median(d, axis=0)
     sd_rendered = float(np.mean(1.4826 * np.median(np.abs(d), axis=0)))
     rms = float(np.sqrt(np.mean(d ** 2)))
-    outliers = float(np.mean(np.hypot(d[:, 0], d[:, 1]) > OUTLIER_SDS * sd_rendered))
+    far = np.hypot(d[:, 0], d[:, 1]) > OUTLIER_SDS * sd_rendered
+    reasons, poor, gone = sample_reasons(out_dir / "designed", frames, t, pos)
+    # what the detectors see: the gate's choice left out, as scet track --events does
+    pos_used = np.where(gone[:, None], np.nan, pos)
+    used = ok & ~gone
     sim_setting = band_setting("rendered twin", setup, 16, 524, sd_rendered)
     ts, ps = simulate_stream(sim_setting, traj, float(t[-1]) + 1e-3, seed)
     keep = ts >= t[0]
     ts, ps = ts[keep], ps[keep]
-    # the second twin: the renders' own instants and valid bands, the simulated noise
+    # the second twin: the renders' own instants and used bands, the simulated noise
     rng = np.random.default_rng(np.random.SeedSequence([seed, 342]))
     pm = truth_pos + rng.normal(0.0, sd_rendered, truth_pos.shape)
-    pm[~ok] = np.nan
-    # the third twin: the renders' valid bands with their own errors, each drawn from the
-    # valid samples whose true eye speed falls in the same band of RESIDUAL_SPEEDS_DEG_S
-    pr = residuals_by_speed(traj, t, pos, truth_pos, ok, rng)
+    pm[~used] = np.nan
+    # the third twin: the renders' used bands with their own errors, each drawn from the
+    # used samples whose true eye speed falls in the same band of RESIDUAL_SPEEDS_DEG_S
+    pr = residuals_by_speed(traj, t, pos, truth_pos, used, rng)
     study_setup = load_scene(scene)
     goal_errors = goal_with_rendered_errors(study_setup, traj, t, pos, truth_pos, ok, seed,
                                             score=score,
                                             noise_sd_deg=noise_sd_deg(study_setup.name, 16),
-                                            counts=(N_SACCADES, N_MICRO))
-    reasons = sample_reasons(out_dir / "designed", frames)
-    if len(reasons) != t.size:
-        raise ValueError(f"{out_dir / 'designed'}: {len(reasons)} reasons for {t.size} samples")
+                                            counts=(N_SACCADES, N_MICRO), poor=poor)
+    # (the draws carry the first step's flags; the neighbour check runs on each drawn stream)
     out = {"frames": frames, "planned": planned, "noise_sd_deg": sd_rendered, "rms_deg": rms,
            "reasons": invalid_reasons(reasons),
            "agreement": band_agreement(t, ok, ts, np.isfinite(ps).all(axis=1), reasons),
-           "outliers": outliers, "goal with rendered errors": goal_errors,
+           "outliers": float(np.mean(far)), "poor fits": float(poor[ok].mean()),
+           "left out": float(gone[ok].mean()),
+           "outliers of the left out": float(np.mean(far[gone[ok]])) if gone.any() else 0.0,
+           "outliers left": float(np.mean(far[~gone[ok]])),
+           "goal with rendered errors": goal_errors,
            "valid_rendered": float(ok.mean()), "valid_simulated": float(np.isfinite(ps).all(axis=1).mean())}
     for det in DETECTORS:
-        mr, sr = score(sim_setting, traj, t, pos, det)
+        mr, sr = score(sim_setting, traj, t, pos_used, det)
         ms, ss = score(sim_setting, traj, ts, ps, det)
         sm = score(sim_setting, traj, t, pm, det)[1]
         out[det] = {"rendered": sr, "simulated": ss, "simulated, the renders' valid bands": sm,
