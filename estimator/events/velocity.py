@@ -27,6 +27,19 @@ MAX_NEIGHBOURS = 64
 CHUNK = 8192
 
 
+def _windows(time_s, position_deg, half_window_s: float):
+    """The stream as arrays (times (n,), positions (n, 2)), the indices (m,) of its valid
+    samples, their times and positions, and for each the first and one-past-last index among
+    them within ``half_window_s`` of it (a relative tolerance of 1e-9 on the window)."""
+    t = np.asarray(time_s, dtype=np.float64)
+    x = np.asarray(position_deg, dtype=np.float64)
+    ok = np.flatnonzero(np.isfinite(x).all(axis=1))
+    tv, xv = t[ok], x[ok]
+    lo = np.searchsorted(tv, tv - half_window_s * (1 + 1e-9), side="left")
+    hi = np.searchsorted(tv, tv + half_window_s * (1 + 1e-9), side="right")
+    return t, x, ok, tv, xv, lo, hi
+
+
 def local_velocity(time_s, position_deg, half_window_s: float, *, max_gap_s: float,
                    full: bool = False):
     """Velocity of every sample from a local line fit over its valid neighbours.
@@ -60,18 +73,13 @@ def local_velocity(time_s, position_deg, half_window_s: float, *, max_gap_s: flo
         sqrt(n / (n S_tt - S_t^2)) (1/s; least squares, e.g. Press et al., Numerical Recipes,
         Sec. 15.2). A window with fewer samples (NaN bands, the blanking gap) has a larger one.
     """
-    t = np.asarray(time_s, dtype=np.float64)
-    x = np.asarray(position_deg, dtype=np.float64)
+    t, x, ok, tv, xv, lo, hi = _windows(time_s, position_deg, half_window_s)
     out = np.full(x.shape, np.nan)
     cen = np.full(t.shape, np.nan)
     gain = np.full(t.shape, np.nan)
-    ok = np.flatnonzero(np.isfinite(x).all(axis=1))
     m = ok.size
     if m < 2:
         return (out, cen, gain) if full else out
-    tv, xv = t[ok], x[ok]
-    lo = np.searchsorted(tv, tv - half_window_s * (1 + 1e-9), side="left")
-    hi = np.searchsorted(tv, tv + half_window_s * (1 + 1e-9), side="right")
     # Fewer than three samples in the window (60 Hz, a sample beside a gap): add the nearest
     # sample outside it, one at a time, on whichever side it is closer, within max_gap_s.
     idx = np.arange(m)
@@ -145,16 +153,11 @@ def leave_one_out_residual(time_s, position_deg, half_window_s: float, *,
         deg; NaN for missing samples and for samples without a neighbour on each side or
         with fewer than ``degree + 2`` neighbours (no redundant fit).
     """
-    t = np.asarray(time_s, dtype=np.float64)
-    x = np.asarray(position_deg, dtype=np.float64)
+    _, x, ok, tv, xv, lo, hi = _windows(time_s, position_deg, half_window_s)
     out = np.full(x.shape, np.nan)
-    ok = np.flatnonzero(np.isfinite(x).all(axis=1))
     m = ok.size
     if m < degree + 3:
         return out
-    tv, xv = t[ok], x[ok]
-    lo = np.searchsorted(tv, tv - half_window_s * (1 + 1e-9), side="left")
-    hi = np.searchsorted(tv, tv + half_window_s * (1 + 1e-9), side="right")
     idx = np.arange(m)
     k_max = int(min(MAX_NEIGHBOURS, max(np.max(idx - lo), np.max(hi - 1 - idx))))
     offsets = np.array([k for k in range(-k_max, k_max + 1) if k != 0])
