@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
+import estimator.events.kernels as kernels
+
 #: Most neighbours on each side a fit looks at (window / shortest spacing rarely exceeds it:
 #: 16 at 1 kHz and +-8 ms); the window is cut there.
 MAX_NEIGHBOURS = 64
@@ -91,32 +93,12 @@ def local_velocity(time_s, position_deg, half_window_s: float, *, max_gap_s: flo
         ahead = few & ~back & (d_ahead <= max_gap_s)
         lo = np.where(back, lo - 1, lo)
         hi = np.where(ahead, hi + 1, hi)
-    k_max = int(min(MAX_NEIGHBOURS, max(np.max(idx - lo), np.max(hi - 1 - idx))))
-    offsets = np.arange(-k_max, k_max + 1)
-    v = np.full((m, 2), np.nan)
-    c = np.full(m, np.nan)
-    g = np.full(m, np.nan)
-    for a in range(0, m, CHUNK):  # one (rows, 2 k + 1) block at a time: bounded memory
-        i = idx[a:a + CHUNK]
-        j = i[:, None] + offsets[None, :]
-        use = (j >= lo[i, None]) & (j < hi[i, None])
-        jc = np.clip(j, 0, m - 1)
-        dt = np.where(use, tv[jc] - tv[i, None], 0.0)  # relative to the sample: no cancellation
-        dx = np.where(use[..., None], xv[jc] - xv[i, None, :], 0.0)
-        s_n = use.sum(axis=1)
-        s_t = dt.sum(axis=1)
-        s_tt = (dt * dt).sum(axis=1)
-        s_x = dx.sum(axis=1)
-        s_tx = np.einsum("ij,ijk->ik", dt, dx)
-        den = s_n * s_tt - s_t * s_t
-        good = (s_n >= 2) & (den > 0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            vb = (s_n[:, None] * s_tx - s_t[:, None] * s_x) / den[:, None]
-        vb[~good] = np.nan
-        v[a:a + CHUNK] = vb
-        with np.errstate(divide="ignore", invalid="ignore"):
-            c[a:a + CHUNK] = np.where(good, tv[i] + s_t / s_n, np.nan)
-            g[a:a + CHUNK] = np.where(good, np.sqrt(s_n / den), np.nan)
+    lo = np.maximum(lo, idx - MAX_NEIGHBOURS)
+    hi = np.minimum(hi, idx + MAX_NEIGHBOURS + 1)
+    v = np.empty((m, 2))
+    c = np.empty(m)
+    g = np.empty(m)
+    (kernels.line_fits if kernels.ENABLED else _line_fits)(tv, xv, lo, hi, v, c, g)
     out[ok] = v
     if not full:
         return out
@@ -159,16 +141,59 @@ def leave_one_out_residual(time_s, position_deg, half_window_s: float, *,
     if m < degree + 3:
         return out
     idx = np.arange(m)
-    k_max = int(min(MAX_NEIGHBOURS, max(np.max(idx - lo), np.max(hi - 1 - idx))))
+    lo = np.maximum(lo, idx - MAX_NEIGHBOURS)
+    hi = np.minimum(hi, idx + MAX_NEIGHBOURS + 1)
+    res = np.empty((m, 2))
+    if kernels.ENABLED and degree == 2:
+        kernels.loo_quadratic(tv, xv, lo, hi, float(half_window_s), res)
+    else:
+        _loo_fits(tv, xv, lo, hi, half_window_s, degree, res)
+    out[ok] = res
+    return out
+
+
+def _line_fits(tv, xv, lo, hi, velocity, centroid, gain) -> None:
+    """numpy path of :func:`estimator.events.kernels.line_fits` (the same arguments): one
+    (rows, 2 k + 1) block of every sample's window at a time, bounded memory."""
+    m = tv.size
+    idx = np.arange(m)
+    k_max = int(max(np.max(idx - lo), np.max(hi - 1 - idx)))
+    offsets = np.arange(-k_max, k_max + 1)
+    for a in range(0, m, CHUNK):
+        i = idx[a:a + CHUNK]
+        j = i[:, None] + offsets[None, :]
+        use = (j >= lo[i, None]) & (j < hi[i, None])
+        jc = np.clip(j, 0, m - 1)
+        dt = np.where(use, tv[jc] - tv[i, None], 0.0)  # relative to the sample: no cancellation
+        dx = np.where(use[..., None], xv[jc] - xv[i, None, :], 0.0)
+        s_n = use.sum(axis=1)
+        s_t = dt.sum(axis=1)
+        s_tt = (dt * dt).sum(axis=1)
+        s_x = dx.sum(axis=1)
+        s_tx = np.einsum("ij,ijk->ik", dt, dx)
+        den = s_n * s_tt - s_t * s_t
+        good = (s_n >= 2) & (den > 0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            vb = (s_n[:, None] * s_tx - s_t[:, None] * s_x) / den[:, None]
+            vb[~good] = np.nan
+            velocity[a:a + CHUNK] = vb
+            centroid[a:a + CHUNK] = np.where(good, tv[i] + s_t / s_n, np.nan)
+            gain[a:a + CHUNK] = np.where(good, np.sqrt(s_n / den), np.nan)
+
+
+def _loo_fits(tv, xv, lo, hi, scale, degree, out) -> None:
+    """numpy path of :func:`estimator.events.kernels.loo_quadratic`, any ``degree``."""
+    m = tv.size
+    idx = np.arange(m)
+    k_max = int(max(np.max(idx - lo), np.max(hi - 1 - idx)))
     offsets = np.array([k for k in range(-k_max, k_max + 1) if k != 0])
-    res = np.full((m, 2), np.nan)
     for a in range(0, m, CHUNK):
         i = idx[a:a + CHUNK]
         j = i[:, None] + offsets[None, :]
         use = (j >= lo[i, None]) & (j < hi[i, None])
         jc = np.clip(j, 0, m - 1)
         # relative, scaled instants: no cancellation, a well-conditioned normal matrix
-        u = np.where(use, (tv[jc] - tv[i, None]) / half_window_s, 0.0)
+        u = np.where(use, (tv[jc] - tv[i, None]) / scale, 0.0)
         basis = np.stack([u ** p for p in range(degree + 1)], axis=-1) * use[..., None]
         normal = np.einsum("mnk,mnl->mkl", basis, basis)
         rhs = np.einsum("mnk,mnd->mkd", basis, np.where(use[..., None], xv[jc], 0.0))
@@ -176,6 +201,4 @@ def leave_one_out_residual(time_s, position_deg, half_window_s: float, *,
                 & (use & (u > 0)).any(axis=1))
         normal[~good] = np.eye(degree + 1)
         coef = np.linalg.solve(normal, rhs)
-        res[a:a + CHUNK] = np.where(good[:, None], xv[i] - coef[:, 0, :], np.nan)
-    out[ok] = res
-    return out
+        out[a:a + CHUNK] = np.where(good[:, None], xv[i] - coef[:, 0, :], np.nan)

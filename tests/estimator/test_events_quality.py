@@ -203,3 +203,25 @@ def test_leave_one_out_residual_is_zero_on_a_parabola_and_finds_a_spike():
     r = leave_one_out_residual(t, x, 0.004)
     assert r[i, 0] == pytest.approx(0.1, abs=1e-9)  # the sample is not in its own fit
     assert not np.isfinite(leave_one_out_residual(t[:4], x[:4], 0.004)).any()  # too few
+
+
+@pytest.mark.skipif(not __import__("estimator.events.kernels").events.kernels.ENABLED,
+                    reason="no Numba (not installed, or NUMBA_DISABLE_JIT): only the numpy path")
+def test_compiled_fits_agree_with_the_numpy_path(monkeypatch):
+    from estimator.events import kernels, velocity
+
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.uniform(0.0002, 0.002, 3000))  # irregular, with a few long gaps
+    t[1500:] += 0.03
+    x = np.column_stack([np.sin(40 * t), np.cos(25 * t)]) + rng.normal(0, 0.01, (t.size, 2))
+    x[rng.random(t.size) < 0.1] = np.nan
+    got = [velocity.local_velocity(t, x, h, max_gap_s=0.025, full=True) for h in (0.002, 0.008)]
+    got.append((velocity.leave_one_out_residual(t, x, 0.004),))
+    monkeypatch.setattr(kernels, "ENABLED", False)
+    ref = [velocity.local_velocity(t, x, h, max_gap_s=0.025, full=True) for h in (0.002, 0.008)]
+    ref.append((velocity.leave_one_out_residual(t, x, 0.004),))
+    for g, r in zip(got, ref):
+        for a, b in zip(g, r):
+            np.testing.assert_array_equal(np.isnan(a), np.isnan(b))
+            # the same sums in another order: rounding only
+            np.testing.assert_allclose(a[np.isfinite(a)], b[np.isfinite(b)], rtol=1e-9, atol=1e-12)
