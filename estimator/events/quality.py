@@ -31,7 +31,8 @@ could not estimate; the samples themselves are not changed (the CSV keeps every 
 On the goal setting with the renders' errors the two conditions together gave 1.00 / 0.99 ms
 onset / offset mean abs error and no false event on five trajectories nothing had been tried
 on, against 1.01 / 1.05 ms and 0.42 a minute leaving out every flagged band and 1.08 / 1.01 ms
-and 1.39 a minute with no gate (``reports/events.md``).
+and 1.39 a minute with no gate (seeds 11-15, a one-off measurement of issue 34's sixth
+round: ``docs/results/events.md``; the report's table pools seeds 0-4).
 
 Both bounds are the stream's own (Hampel's identifier: the median plus 3 times 1.4826 median
 absolute deviations, the SD of a Gaussian; Hampel 1974, Pearson 2002 "Outliers in process
