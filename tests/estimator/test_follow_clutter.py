@@ -64,7 +64,7 @@ def test_clutter_beside_lone_glints_is_followed_as_the_search_identifies(followe
     assert identities(det, a.match.light_index) == identities(det, searched.light_index)
 
 
-def test_a_detection_beside_an_identified_glint_leaves_the_band_to_the_search(follower):  # noqa: F811
+def test_a_detection_beside_a_glint_leaves_the_band_to_the_search(follower):  # noqa: F811
     """The same band with one more clutter spot 1.6 px from a glint (within two gates of its
     light's prediction): the cheap path declines (the search decides which detection is the
     glint); with fewer clutter spots than glints the same spot does not stop it (the rule
