@@ -26,10 +26,16 @@ Printed per dataset and method:
   time), the three alternated over ``--rounds`` rounds, the range of the rounds and the ratio
   to ``whole`` per round; the bands the fallback gave their strip's detections ("redone").
 
+With ``--declines`` it prints instead, per method, every dense band the default tracker's
+cheap path declines: which of the follow step's tests declined it (from the prior, and on the
+second try from the last rotation; :func:`follow_decision`), what followed (left unsearched as
+``band_out_of_reach``, or the search's reason, and where it accepted whether with the cheap
+try's lights), and the searches' CPU time by decision (issue 31, sixth pass).
+
 Usage::
 
     python benchmarks/bench_focus.py DATASET[:PULSES] [...] [--frames N] [--rounds 3]
-                                     [--calibration FILE]
+                                     [--calibration FILE] [--declines]
 
 A dataset is a rendered folder (``frames/``, ``manifest.json``, ``labels.jsonl``), tracked
 with the scene its manifest records (scaled to its width), ``PULSES`` pulses a frame where
@@ -43,9 +49,11 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import sys
 import time
+from collections import Counter
 from pathlib import Path
 
 for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -57,6 +65,8 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from estimator.banding import scaled_setup, strobe_setup  # noqa: E402
 from estimator.folders import calibrate_from_folder, iter_folder, load_calibration  # noqa: E402
+from estimator.matching import follow_kernel  # noqa: E402
+from estimator.matching.kernels import rival_margin  # noqa: E402
 from estimator.scene import load_scene, parse_scene  # noqa: E402
 from estimator.tracking import Tracker  # noqa: E402
 
@@ -183,6 +193,139 @@ def compare(setup, cal, method, imgs, labels) -> None:
                   f"{a.light_index.tolist()} -> {b.reason} {b.light_index.tolist()}")
 
 
+def follow_decision(context, g, rows, prior, weight) -> tuple[str, list]:
+    """Which of the compiled follow step's tests (``estimator.matching.follow_kernel
+    .follow_band``) decides band ``g`` (k, 2) from ``prior`` (2,): its steps run one by one
+    with the kernel's own compiled helpers; (decision, the lights of its last assignment).
+    Decisions: few_detections, fallback, few_in_prior_gate (fewer than 5 detections within
+    the prior's gate), fit_failed, not_settled, few_matched, crowded (more unmatched than
+    matched and a detection within two gates of an identified glint), shift, rival (a shifted
+    chain within the rival margin), match_min, accepted."""
+    fk = follow_kernel
+    fixed = context.kernel.fixed
+    R, O, intr, size, rc, offset, radius, lights, cap, ce, rco, fit_radius, xtol, group, \
+        shifted = fixed[:15]
+    prior_gate, gate, margin_px, noise, unmatched, missing_cost, sigma, max_shift, rival_min, \
+        min_margin = fixed[15]
+    min_matches, match_min, rounds, max_nodes = (int(v) for v in fixed[16])
+    cam, (lo, hi), k, n = (R, O, intr, size), (float(rows[0]), float(rows[1])), len(g), len(lights)
+    if k < min_matches:
+        return "few_detections", []
+    pred, jac, x, JtJ = np.empty((n, 2)), np.empty((n, 2, 3)), np.empty(2), np.zeros((2, 2))
+    vis, cand, inside = (np.empty(n, dtype=np.bool_) for _ in range(3))
+    center, axis = np.empty(3), np.empty(3)
+    assign, dist = np.empty(k, dtype=np.int64), np.empty(k)
+    fk._candidates(cam, prior, rc, offset, radius, lights, cap, lo, hi, margin_px, pred, vis,
+                   cand, inside, center, axis, np.empty((0, 2, 3)), False)
+    if not fk._assign(g, pred, cand, prior_gate, assign, dist, max_nodes):
+        return "fallback", []
+    x0 = np.array(prior, dtype=np.float64)
+    for _ in range(rounds):
+        if (assign >= 0).sum() < min_matches:
+            return "few_in_prior_gate", []
+        ok = fk._fit(cam, g, lights, assign, x0, ce, rco, fit_radius, xtol, np.zeros(2),
+                     np.zeros((2, 2)), x, JtJ)[0]
+        if not ok:
+            return "fit_failed", []
+        x0[:], prev = x, assign.copy()
+        if not fk._final(cam, g, x, rc, offset, radius, lights, cap, lo, hi, margin_px, gate,
+                         group, max_nodes, pred, vis, cand, inside, center, axis, jac, True,
+                         assign, dist):
+            return "fallback", []
+        if np.array_equal(assign, prev):
+            break
+    else:
+        return "not_settled", []
+    used = assign >= 0
+    m, got = int(used.sum()), sorted(assign[used].tolist())
+    if m < min_matches:
+        return "few_matched", got
+    if m < 0.5 * k and fk.crowded(g, assign, pred, cand, fk.CROWD_GATES * gate):
+        return "crowded", got
+    if np.abs(x - prior).max() > max_shift:
+        return "shift", got
+    detected = np.zeros(n, dtype=bool)
+    detected[assign[used]] = True
+    d = (x - prior) / sigma
+    score = (float((dist[used] ** 2).sum()) / noise ** 2 + (k - m) * unmatched
+             + missing_cost * int((inside & ~detected).sum()) + weight * float(d @ d))
+    cp, sp, cy, sy = math.cos(x[1]), math.sin(x[1]), math.cos(x[0]), math.sin(x[0])
+    da = offset * np.array([[cp * cy, -sp * sy], [0.0, cp], [cp * sy, sp * cy]])
+    J = np.ascontiguousarray(np.einsum("nac,cb->nab", jac, da))
+    margin = rival_margin(g, assign, pred, J, vis, shifted, x, np.asarray(prior, float), lo,
+                          hi, gate, margin_px, noise, unmatched, missing_cost, sigma, weight,
+                          score)
+    if not margin >= rival_min:
+        return "rival", got
+    if m < match_min or margin < min_margin:
+        return "match_min", got
+    return "accepted", got
+
+
+def declines(setup, cal, method, imgs) -> None:
+    """Every dense band the cheap path declines: the follow step's decision (from the prior,
+    then the second try from the last rotation), and what the tracker then did (left
+    unsearched, or the search's reason, "ok" with the cheap try's lights or with others), and
+    the searches' CPU time by decision."""
+    import estimator.tracking.bands as bands
+    table, ms, cur = Counter(), Counter(), {}
+    cheap, search, dense = bands.cheap_sample, bands.searched_sample, bands.dense_sample
+
+    def cheap_sample(context, state, f, j, time_s, g, rows):
+        got = cheap(context, state, f, j, time_s, g, rows)
+        cur.clear()
+        if got is not None or context.kernel is None:
+            return got
+        fresh = state.fresh_prior()
+        prior = state.prior_angles_rad if fresh else state.carried_prior(time_s)
+        g = np.ascontiguousarray(g, dtype=np.float64)
+        if prior is None:
+            cur.update(key=(f, j), why=("no prior" if state.last is None else "prior too old",
+                                        ""), lights=[])
+            return None
+        why, lights = follow_decision(context, g, rows, prior, 1.0 if fresh else 0.0)
+        again = ""
+        if why != "accepted" and not fresh and state.velocity_rad_s is not None:
+            again, got2 = follow_decision(context, g, rows, state.last.angles_rad, 0.0)
+            lights = got2 if again == "accepted" else lights
+        cur.update(key=(f, j), why=(why, again), lights=lights)
+        return None
+
+    def searched_sample(context, state, f, j, time_s, g, rows):
+        t = time.process_time()
+        s, after = search(context, state, f, j, time_s, g, rows)
+        if cur.get("key") == (f, j):
+            out = str(s.reason)
+            if s.ok:
+                same = sorted(s.light_index.tolist()) == cur["lights"]
+                out = "ok, the same lights" if same else "ok, other lights"
+            table[(*cur["why"], out)] += 1
+            ms[cur["why"][0]] += 1e3 * (time.process_time() - t)
+        return s, after
+
+    def dense_sample(context, state, f, j, time_s, g, rows, counts):
+        before = counts["unfillable"]
+        got = dense(context, state, f, j, time_s, g, rows, counts)
+        if counts["unfillable"] != before and cur.get("key") == (f, j):
+            table[(*cur["why"], "unsearched (band_out_of_reach)")] += 1
+        return got
+
+    bands.cheap_sample, bands.searched_sample, bands.dense_sample = (
+        cheap_sample, searched_sample, dense_sample)
+    try:
+        tr = tracker(setup, cal, method, "whole")
+        samples = [s for f, t0, img in imgs for s in tr.process(img, f, t0)]
+    finally:
+        bands.cheap_sample, bands.searched_sample, bands.dense_sample = cheap, search, dense
+    print(f"  {method}: {len(samples)} bands, estimated {sum(s.ok for s in samples)}; dense "
+          f"bands by route {dict(tr.counts)}")
+    print("    declined bands | decision (prior) | second try | then")
+    for (why, again, out), n in sorted(table.items(), key=lambda kv: -kv[1]):
+        print(f"    {n:6d} | {why} | {again or '-'} | {out}")
+    for why, t in sorted(ms.items(), key=lambda kv: -kv[1]):
+        print(f"    searches after '{why}': {t:.0f} ms CPU")
+
+
 def timing(setup, cal, method, imgs, rounds: int) -> None:
     for mode in MODES:  # load the compiled kernels
         tr = tracker(setup, cal, method, mode)
@@ -212,6 +355,8 @@ def main(argv=None) -> None:
     ap.add_argument("--rounds", type=int, default=3)
     ap.add_argument("--calibration", type=Path, default=None)
     ap.add_argument("--no-timing", action="store_true", help="compare the samples only")
+    ap.add_argument("--declines", action="store_true",
+                    help="only the default tracker's declined bands: why, and what followed")
     args = ap.parse_args(argv)
     cv2.setNumThreads(1)
     for spec in args.datasets:
@@ -221,6 +366,10 @@ def main(argv=None) -> None:
             ap.error(f"{spec}: not a rendered dataset with a calibration: {exc}")
         print(f"{spec}: {len(imgs)} frames {setup.camera.width_px}x{setup.camera.height_px}, "
               f"{setup.strobe.pulses_per_frame} pulses/frame")
+        if args.declines:
+            for method in ("polynomial", "geometric"):
+                declines(setup, cal, method, imgs)
+            continue
         for method in ("polynomial", "geometric"):
             compare(setup, cal, method, imgs, labels)
         if not args.no_timing:

@@ -36,6 +36,12 @@ DECLINED, ACCEPTED, FALLBACK = 0, 1, 2
 #: The most nodes the compiled optimal assignment visits before the Python form takes the band
 #: (a sparse band's 1-4 detections with 1-3 candidates each visit tens).
 MAX_NODES = 20000
+#: A band with more unmatched detections than matched (clutter beside the glints) is taken
+#: only where each matched detection stands alone within this many gates (``gate_px``) of its
+#: light's predicted glint, and no other candidate light is predicted that near it: there the
+#: search, whose fit from the prior lands a fraction of a pixel from the follower's, assigns
+#: the same detections (:meth:`estimator.matching.BandFollower.follow`).
+CROWD_GATES = 2.0
 #: Whether :func:`follow_band` is compiled (the matching kernels and the projection are).
 ENABLED = _KERNELS and compiled.ENABLED
 
@@ -94,6 +100,26 @@ def _assign(g, pred, cand, gate, assign, dist, max_nodes):
     if nearest_assign(g, pred, lights, gate * gate, assign, dist):
         return True
     return optimal_assign(g, pred, lights, gate * gate, assign, dist, max_nodes)
+
+
+def crowded(g, assign, pred, cand, radius):
+    """Whether a matched detection of ``assign`` (k,) has a rival within ``radius`` px: another
+    detection of ``g`` (k, 2) that near its light's predicted glint (``pred`` (n, 2)), or
+    another candidate light (``cand`` (n,)) predicted that near it
+    (:meth:`estimator.matching.BandFollower.follow`, :data:`CROWD_GATES`)."""
+    r2 = radius * radius
+    for d in range(assign.shape[0]):
+        a = assign[d]
+        if a < 0:
+            continue
+        for e in range(g.shape[0]):
+            if e != d and (g[e, 0] - pred[a, 0]) ** 2 + (g[e, 1] - pred[a, 1]) ** 2 <= r2:
+                return True
+        for c in range(pred.shape[0]):
+            if c != a and cand[c] and \
+                    (g[d, 0] - pred[c, 0]) ** 2 + (g[d, 1] - pred[c, 1]) ** 2 <= r2:
+                return True
+    return False
 
 
 def matched_pairs(g, lights, assign):
@@ -221,7 +247,9 @@ def follow_band(g, lo, hi, prior, weight, R, O, intr, size, rc, offset, radius, 
             matched += 1
             sq += dist[d] * dist[d]
             detected[assign[d]] = True
-    if matched < follow_min_matches or matched < 0.5 * k:
+    if matched < follow_min_matches:  # BandFollower.follow's test: the search's holds then
+        return out
+    if matched < 0.5 * k and crowded(g, assign, pred, cand, CROWD_GATES * gate_px):
         return out
     if max(abs(x[0] - prior[0]), abs(x[1] - prior[1])) > max_shift_rad:
         return out
@@ -261,6 +289,7 @@ def follow_band(g, lo, hi, prior, weight, R, O, intr, size, rc, offset, radius, 
 if ENABLED:
     _jit = compiled.numba.njit(cache=True, nogil=True, error_model="numpy")
     orbit_pose = _jit(orbit_pose)
+    crowded = _jit(crowded)
     matched_pairs = _jit(matched_pairs)
     _candidates = _jit(_candidates)
     _assign = _jit(_assign)

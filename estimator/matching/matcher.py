@@ -124,6 +124,7 @@ class GlintMatcher(HypothesisSearch):
                           params.grid_step_deg)
         Y, P = np.meshgrid(np.radians(yaw), np.radians(pitch), indexing="ij")
         self._grid_shape = Y.shape
+        self._grid_axes = (Y[:, 0].copy(), P[0].copy())  # the nodes' yaws, pitches (_near)
         self.grid_angles_rad = np.stack([Y.ravel(), P.ravel()], axis=-1)
         self.grid_glints_px, self.grid_visible = self.predict(self.grid_angles_rad)
         #: The furthest a glint moves between neighbouring grid nodes (px; :meth:`band_support`).
@@ -283,8 +284,7 @@ class GlintMatcher(HypothesisSearch):
                 raise ValueError("prior_angles_rad must be finite")
             # The prior, and the best grid poses near it: a prior a few pixels off can lock
             # onto the arc's chain shifted by one light, which only a rival start exposes.
-            near = np.abs(self.grid_angles_rad - prior).max(axis=1) <= math.radians(
-                p.prior_window_deg)
+            near = self._near(prior, math.radians(p.prior_window_deg))
             starts = [prior] + (self._coarse(g, lo, hi, near, p.prior_hypotheses)
                                 if p.prior_hypotheses else [])
             weight = np.eye(2) / math.radians(p.prior_sigma_deg) ** 2

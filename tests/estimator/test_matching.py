@@ -384,3 +384,19 @@ def test_a_wide_prior_refuses_rather_than_guesses(matchers):
 def test_match_near_bad_input(matchers, prior, cov, message):
     with pytest.raises(ValueError, match=message):
         matchers["paper_sim"].match_near(np.zeros((1, 2)), prior, cov)
+
+
+def test_prior_window_is_the_grid_nodes_near_the_prior(matchers):
+    """The search's grid nodes near a prior (``GlintMatcher._near``, by axis) are exactly those
+    whose larger angle difference is within the window: priors anywhere on the eye's range
+    and on the window's edge (a node plus or minus the window: the same float comparison)."""
+    m = matchers["paper_sim"]
+    w = np.radians(m.params.prior_window_deg)
+    rng = np.random.default_rng(3)
+    nodes = m.grid_angles_rad[rng.integers(0, len(m.grid_angles_rad), 300)]
+    priors = np.concatenate([rng.uniform(-0.7, 0.7, (300, 2)),
+                             nodes + rng.choice([-w, 0.0, w], (300, 2))])
+    for p in priors:
+        want = np.abs(m.grid_angles_rad - p).max(axis=1) <= w
+        assert np.array_equal(m._near(p, w), want)
+    assert m._near(np.zeros(2), w).sum() == (2 * int(m.params.prior_window_deg) + 1) ** 2
