@@ -166,10 +166,14 @@ class HypothesisSearch:
         score = score.reshape(self._grid_shape)
         # Local minima over 3x3 neighbourhoods, best first; a node no better than leaving
         # every detection unmatched is no hypothesis.
-        padded = np.pad(score, 1, constant_values=np.inf)
+        # The eight neighbours' minimum by running minima in place (the same floats as the
+        # minimum of their stack, without its (8, N) temporary; issue 31 seventh pass).
         h, w = score.shape
-        nb = np.min([padded[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx]
-                     for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx], axis=0)
+        padded = np.full((h + 2, w + 2), np.inf)
+        padded[1:h + 1, 1:w + 1] = score
+        nb = padded[0:h, 0:w].copy()
+        for dy, dx in ((-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)):
+            np.minimum(nb, padded[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx], out=nb)
         flat = score.ravel()
         minima = np.flatnonzero((flat <= nb.ravel()) & (flat < g.shape[0] * unmatched_cost))
         order = minima[np.argsort(flat[minima], kind="stable")][:count]
