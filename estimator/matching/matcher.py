@@ -69,12 +69,7 @@ from .params import (
     GlintMatch,
     MatchParams,
 )
-from .search import HypothesisSearch
-
-
-#: Batches of at most this many poses are predicted one pose at a time by the compiled
-#: projection (where Numba is): a search's hypotheses (2-12), not the coarse grid.
-_FEW_POSES = 32
+from .search import _FEW_POSES, HypothesisSearch
 
 
 class GlintMatcher(HypothesisSearch):
