@@ -69,12 +69,7 @@ from .params import (
     GlintMatch,
     MatchParams,
 )
-from .search import HypothesisSearch
-
-
-#: Batches of at most this many poses are predicted one pose at a time by the compiled
-#: projection (where Numba is): a search's hypotheses (2-12), not the coarse grid.
-_FEW_POSES = 32
+from .search import _FEW_POSES, HypothesisSearch
 
 
 class GlintMatcher(HypothesisSearch):
@@ -165,8 +160,8 @@ class GlintMatcher(HypothesisSearch):
         return project_glints(self.setup.camera, x, eye.cornea_radius_m, self.lights_world_m,
                               cornea_axis=axis, cap_cos_min=eye.cap_cos_min)
 
-    def _predict_one(self, yaw: float, pitch: float):
-        """Glints (n, 2) and visibility (n,) of every light at one rotation on the orbit, by
+    def _predict_one(self, yaw: float, pitch: float, out=None):
+        """Glints (n, 2) and visibility (n,) (into ``out``'s where given) at one rotation, by
         the compiled projection (:func:`estimator.geometry.glints_one_pose`: the same glints
         to ~1e-12 px and the same visibility as :meth:`predict`); gaze_direction and
         Eye.cornea_center of one rotation without numpy's per-call cost."""
@@ -174,7 +169,7 @@ class GlintMatcher(HypothesisSearch):
         center, axis = self._orbit_pose(yaw, pitch)
         if compiled.ENABLED:  # the kernel itself: glints_one_pose's checks cost half the call
             n = self.lights_world_m.shape[0]
-            g, vis = np.empty((n, 2)), np.empty(n, dtype=np.bool_)
+            g, vis = (np.empty((n, 2)), np.empty(n, dtype=np.bool_)) if out is None else out
             compiled.glints_kernel(*self.arrays, center, eye.cornea_radius_m, self.lights_world_m,
                                    axis, eye.cap_cos_min, True, g, vis, False,
                                    compiled.NO_JACOBIAN)
@@ -223,13 +218,13 @@ class GlintMatcher(HypothesisSearch):
 
     def _predict_each(self, x):
         """:meth:`_predict_x` one pose at a time by the compiled projection, where numpy's
-        ~0.4 ms per call on a handful of poses is overhead."""
+        ~0.4 ms per call on a handful of poses is overhead (the kernel writing in place)."""
         eye, orbit = self.eye, self.params.model == "orbit"
         n = self.lights_world_m.shape[0]
         g, vis = np.empty((x.shape[0], n, 2)), np.empty((x.shape[0], n), dtype=bool)
         for h in range(x.shape[0]):
             if orbit:
-                g[h], vis[h] = self._predict_one(float(x[h, 0]), float(x[h, 1]))
+                g[h], vis[h] = self._predict_one(float(x[h, 0]), float(x[h, 1]), (g[h], vis[h]))
                 continue
             center = np.asarray(x[h], dtype=np.float64)
             axis = center - eye.rotation_center_m

@@ -24,6 +24,10 @@ from .model import _Hypothesis
 #: The shifts along the arcs the search tries (lights), and their column in the shift table.
 _STEPS = {-2: 0, -1: 1, 1: 2, 2: 3}
 
+#: Batches of at most this many poses are predicted one pose at a time by the compiled
+#: projection (where Numba is): a search's hypotheses (2-12), not the coarse grid.
+_FEW_POSES = 32
+
 
 class HypothesisSearch:
     """Steps of :class:`estimator.matching.GlintMatcher`'s search (a base class: it reads
@@ -166,10 +170,14 @@ class HypothesisSearch:
         score = score.reshape(self._grid_shape)
         # Local minima over 3x3 neighbourhoods, best first; a node no better than leaving
         # every detection unmatched is no hypothesis.
-        padded = np.pad(score, 1, constant_values=np.inf)
+        # The eight neighbours' minimum by running minima in place (the same floats as the
+        # minimum of their stack, without its (8, N) temporary; issue 31 seventh pass).
         h, w = score.shape
-        nb = np.min([padded[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx]
-                     for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx], axis=0)
+        padded = np.full((h + 2, w + 2), np.inf)
+        padded[1:h + 1, 1:w + 1] = score
+        nb = padded[0:h, 0:w].copy()
+        for dy, dx in ((-1, 0), (-1, 1), (0, -1), (0, 1), (1, -1), (1, 0), (1, 1)):
+            np.minimum(nb, padded[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx], out=nb)
         flat = score.ravel()
         minima = np.flatnonzero((flat <= nb.ravel()) & (flat < g.shape[0] * unmatched_cost))
         order = minima[np.argsort(flat[minima], kind="stable")][:count]
@@ -306,6 +314,9 @@ class HypothesisSearch:
         iters = np.zeros(H, dtype=int)
         active = np.ones(H, dtype=bool)
         alive = np.ones(H, dtype=bool)
+        # Each hypothesis' last prediction one pose at a time (pred, cand) while its pose
+        # stands: the final assignment's, the same floats (issue 31 seventh pass).
+        last: list = [None] * H
         for it in range(p.max_iter):
             idx = np.flatnonzero(active)
             if idx.size == 0:
@@ -313,6 +324,9 @@ class HypothesisSearch:
             given = it == 0 and first_assign is not None
             if not given or any(first_assign[h] is None for h in idx):
                 pred, cand, _ = self._candidates(X[idx], lo, hi)
+                if kernels.ENABLED and idx.size <= _FEW_POSES:
+                    for a, h in enumerate(idx):
+                        last[h] = (pred[a], cand[a])
             to_fit, assigns = [], []
             seen = {}
             for a, h in enumerate(idx):
@@ -333,6 +347,8 @@ class HypothesisSearch:
                 assigns.append(assign)
             if to_fit:
                 X[to_fit], ok = self._fit(g, assigns, X[to_fit], fit_prior)
+                for h in to_fit:
+                    last[h] = None
                 fit_ok[to_fit] = ok
                 iters[to_fit] += 1
                 gate[np.array(to_fit)[ok]] = p.gate_px
@@ -342,7 +358,7 @@ class HypothesisSearch:
         # Final assignment at the final gate, the arc order enforced, and one more refit where
         # it changed the matches.
         X = X[keep]
-        pred, cand, inside = self._candidates(X, lo, hi)
+        pred, cand, inside = self._candidates_kept(X, [last[h] for h in keep], lo, hi)
         final = [self._final_assign(g, pred[a], cand[a]) for a in range(keep.size)]
         changed = [a for a in range(keep.size) if (final[a][0] >= 0).any() and (
             prev[keep[a]] is None or not np.array_equal(final[a][0], prev[keep[a]]))]
@@ -367,6 +383,25 @@ class HypothesisSearch:
             out.append(_Hypothesis(X[a].copy(), assign, dist, pred[a], cand[a], float(score),
                                    int(iters[keep[a]]), bool(ok[a])))
         return out
+
+    def _candidates_kept(self, X, last, lo, hi):
+        """:meth:`_candidates` of X (H, p) reusing ``last`` (H,): each pose's (pred, cand)
+        from one pose at a time, or None (predicted now); the same floats where the batch is
+        predicted one pose at a time too (the glints well inside the band are candidates for a
+        margin >= 0)."""
+        todo = [a for a, c in enumerate(last) if c is None]
+        if (not (kernels.ENABLED and X.shape[0] <= _FEW_POSES) or len(todo) == X.shape[0]
+                or self.params.band_margin_px < 0):
+            return self._candidates(X, lo, hi)
+        n = self.lights_world_m.shape[0]
+        pred, cand = np.empty((X.shape[0], n, 2)), np.empty((X.shape[0], n), dtype=bool)
+        if todo:
+            pred[todo], cand[todo], _ = self._candidates(X[todo], lo, hi)
+        for a, c in enumerate(last):
+            if c is not None:
+                pred[a], cand[a] = c
+        v, m = pred[..., 1], self.params.band_margin_px
+        return pred, cand, cand & (v >= lo + m) & (v <= hi - m)
 
     def _refine_compiled(self, g, lo, hi, X, first_gate, first_assign, fit_prior):
         """:meth:`_refine` with a prior on the orbit by :func:`refine_kernel.refine_prior`, or

@@ -17,6 +17,7 @@ from dataclasses import FrozenInstanceError
 import numpy as np
 import pytest
 
+import estimator.matching.kernels as kernels
 from estimator.banding import band_layout
 from estimator.glints import detect_glints
 from estimator.matching import NO_HYPOTHESIS, OK, TOO_FEW_GLINTS, GlintMatcher, MatchParams, match_glints
@@ -400,3 +401,36 @@ def test_prior_window_is_the_grid_nodes_near_the_prior(matchers):
         want = np.abs(m.grid_angles_rad - p).max(axis=1) <= w
         assert np.array_equal(m._near(p, w), want)
     assert m._near(np.zeros(2), w).sum() == (2 * int(m.params.prior_window_deg) + 1) ** 2
+
+
+def test_search_shortcuts_give_the_same_floats(matchers):
+    """The search's exact shortcuts (issue 31 seventh pass): the grid's local minima by
+    running minima in place are those of the stacked neighbours' minimum, ties and
+    unscored (inf) nodes included; the few-pose prediction written in place and a refinement's
+    reused predictions give the bits of predicting the batch anew."""
+    m = matchers["paper_sim"]
+    rng = np.random.default_rng(7)
+    g = np.zeros((40, 2))
+    for _ in range(20):
+        score = np.round(rng.uniform(0, 30, m.grid_angles_rad.shape[0]))  # ties
+        score[rng.random(score.size) < 0.3] = np.inf
+        grid = score.reshape(m._grid_shape)
+        padded = np.pad(grid, 1, constant_values=np.inf)
+        h, w = grid.shape
+        nb = np.min([padded[1 + dy:h + 1 + dy, 1 + dx:w + 1 + dx]
+                     for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx], axis=0).ravel()
+        minima = np.flatnonzero((score <= nb) & (score < g.shape[0] * m.params.unmatched_cost))
+        want = minima[np.argsort(score[minima], kind="stable")][:12]
+        got = m._minima(g, score, 12)
+        assert len(got) == len(want)
+        assert all(np.array_equal(a, m.grid_angles_rad[i]) for a, i in zip(got, want))
+    X = rng.uniform(-0.4, 0.4, (9, 2))
+    lo, hi = 150.0, 260.0
+    pred, cand, inside = m._candidates(X, lo, hi)
+    for h in range(X.shape[0] if kernels.ENABLED else 0):  # one pose at a time with Numba alone
+        one, vis = m._predict_one(float(X[h, 0]), float(X[h, 1]))
+        assert np.array_equal(pred[h], one) and np.array_equal(cand[h] & ~vis, np.zeros_like(vis))
+    last = [(pred[h], cand[h]) if h % 2 else None for h in range(X.shape[0])]
+    for a, b in zip(m._candidates_kept(X, last, lo, hi), (pred, cand, inside)):
+        assert a.dtype == b.dtype and np.array_equal(a, b)
+    assert cand.any() and inside.any() and (cand & ~inside).any()
