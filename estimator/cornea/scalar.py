@@ -29,7 +29,7 @@ from __future__ import annotations
 import math
 
 from ..geometry.compiled import jacobian_in_camera as _jacobian_in_camera
-from ..geometry.compiled import reflection_root as _root
+from ..geometry.compiled import sphere_reflection as _reflection
 
 __all__ = ["camera_floats", "lights_in_camera", "lm_floats", "glints_floats"]
 
@@ -73,41 +73,14 @@ def _centre(model, x, ce, rco):
             ce[2] + rco * (-cp * math.cos(x[0])))
 
 
-def _plane(lx, ly, lz, e1x, e1y, e1z):
-    """The plane of reflection of one light (offset ``l`` from the centre, camera frame) and
-    the unit ``e1`` toward the camera: l along e1 and normal to it, |l|, 1 / |l| (1 where
-    l = 0) and the unit e2 normal to e1 in the plane (the compiled kernel's operations)."""
-    l_par = lx * e1x + ly * e1y + lz * e1z
-    px, py, pz = lx - l_par * e1x, ly - l_par * e1y, lz - l_par * e1z
-    l_perp = math.sqrt(px * px + py * py + pz * pz)
-    l_norm = math.sqrt(l_par * l_par + l_perp * l_perp)
-    inv_n = 1.0 / l_norm if l_norm > 0 else 1.0
-    if l_perp <= 1e-12 * l_norm:  # light on the camera-centre line: any plane through it
-        gx, gy, gz = e1y, -e1x, 0.0
-        if math.sqrt(gx * gx + gy * gy) <= 1e-6:
-            gx, gy, gz = 0.0, e1z, -e1y
-        fn = math.sqrt(gx * gx + gy * gy + gz * gz)
-        return l_par, l_perp, l_norm, inv_n, gx / fn, gy / fn, gz / fn
-    inv = 1.0 / l_perp
-    return l_par, l_perp, l_norm, inv_n, px * inv, py * inv, pz * inv
-
-
 def _glint(cam, radius, cx, cy, cz, o_norm, e1x, e1y, e1z, q):
     """One light's reflection (``q``: R (L - O), :func:`lights_in_camera`) on the sphere of
     ``radius`` about the centre (cx, cy, cz) in camera axes, o_norm and e1 from
     :func:`_toward_camera`: (outside, a, b, cos θ, sin θ, c1, e2 (3), normal n (3), point
     (X, Y, Z), pixel (u, v)), ``outside`` whether camera and light are both outside the
     sphere (else a = b = 2, the root still defined), u = v = NaN behind the camera."""
-    l_par, l_perp, l_norm, inv_n, e2x, e2y, e2z = _plane(q[0] - cx, q[1] - cy, q[2] - cz,
-                                                         e1x, e1y, e1z)
-    alpha, beta = o_norm / radius, l_norm / radius
-    cp, sp = l_par * inv_n, l_perp * inv_n
-    outside = alpha > 1 and beta > 1
-    a, b = (alpha, beta) if outside else (2.0, 2.0)
-    ct, st = _root(a, b, cp, sp)
-    nx, ny, nz = ct * e1x + st * e2x, ct * e1y + st * e2y, ct * e1z + st * e2z
-    X, Y, Z = cx + radius * nx, cy + radius * ny, cz + radius * nz
-    c1 = cp * ct + sp * st
+    outside, a, b, ct, st, c1, e2x, e2y, e2z, nx, ny, nz, X, Y, Z = _reflection(
+        radius, cx, cy, cz, o_norm, e1x, e1y, e1z, q[0] - cx, q[1] - cy, q[2] - cz)
     if Z > 0:
         iz = 1.0 / Z
         u = cam[12] * X * iz + cam[14]

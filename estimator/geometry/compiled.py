@@ -85,6 +85,38 @@ def _root(a, b, cp, sp):
     return math.cos(theta), math.sin(theta)
 
 
+def _sphere_reflection(radius, cx, cy, cz, o_norm, e1x, e1y, e1z, lx, ly, lz):
+    """One light's reflection on the sphere of ``radius`` about the centre (cx, cy, cz), in
+    camera axes: ``o_norm`` = |c|, e1 the unit from the centre toward the camera, l = (lx, ly,
+    lz) the light's offset from the centre. Returns (outside, a, b, cos θ, sin θ, c1, e2 (3),
+    normal n (3), point (X, Y, Z)): ``outside`` whether camera and light are both outside the
+    sphere (else a = b = 2, the root still defined). What :func:`glints_kernel` and the
+    scalar float path (:mod:`estimator.cornea.scalar`) compute for every light."""
+    l_par = lx * e1x + ly * e1y + lz * e1z
+    px, py, pz = lx - l_par * e1x, ly - l_par * e1y, lz - l_par * e1z
+    l_perp = math.sqrt(px * px + py * py + pz * pz)
+    l_norm = math.sqrt(l_par * l_par + l_perp * l_perp)
+    inv_n = 1.0 / l_norm if l_norm > 0 else 1.0
+    if l_perp <= 1e-12 * l_norm:  # light on the camera-centre line: any plane through it
+        fx, fy, fz = e1y, -e1x, 0.0  # e1 x (0, 0, 1)
+        if math.sqrt(fx * fx + fy * fy) <= 1e-6:
+            fx, fy, fz = 0.0, e1z, -e1y  # e1 x (1, 0, 0)
+        fn = math.sqrt(fx * fx + fy * fy + fz * fz)
+        e2x, e2y, e2z = fx / fn, fy / fn, fz / fn
+    else:
+        inv = 1.0 / l_perp
+        e2x, e2y, e2z = px * inv, py * inv, pz * inv
+    alpha, beta = o_norm / radius, l_norm / radius
+    cp, sp = l_par * inv_n, l_perp * inv_n
+    outside = alpha > 1 and beta > 1
+    a, b = (alpha, beta) if outside else (2.0, 2.0)
+    ct, st = _root(a, b, cp, sp)
+    nx, ny, nz = ct * e1x + st * e2x, ct * e1y + st * e2y, ct * e1z + st * e2z
+    X, Y, Z = cx + radius * nx, cy + radius * ny, cz + radius * nz
+    c1 = cp * ct + sp * st
+    return outside, a, b, ct, st, c1, e2x, e2y, e2z, nx, ny, nz, X, Y, Z
+
+
 def glints_kernel(R, O, intr, size, center, radius, lights, axis, cap_cos_min, use_cap,
                    out, visible, with_jacobian, jac):
     """Glints (n, 2) and visibility (n,) of ``lights`` (n, 3) for one cornea ``center`` (3,),
@@ -107,28 +139,8 @@ def glints_kernel(R, O, intr, size, center, radius, lights, axis, cap_cos_min, u
         lx = R[0, 0] * q0 + R[0, 1] * q1 + R[0, 2] * q2 - cx
         ly = R[1, 0] * q0 + R[1, 1] * q1 + R[1, 2] * q2 - cy
         lz = R[2, 0] * q0 + R[2, 1] * q1 + R[2, 2] * q2 - cz
-        l_par = lx * e1x + ly * e1y + lz * e1z
-        px, py, pz = lx - l_par * e1x, ly - l_par * e1y, lz - l_par * e1z
-        l_perp = math.sqrt(px * px + py * py + pz * pz)
-        l_norm = math.sqrt(l_par * l_par + l_perp * l_perp)
-        inv_n = 1.0 / l_norm if l_norm > 0 else 1.0
-        if l_perp <= 1e-12 * l_norm:  # light on the camera-centre line: any plane through it
-            fx, fy, fz = e1y, -e1x, 0.0  # e1 x (0, 0, 1)
-            if math.sqrt(fx * fx + fy * fy) <= 1e-6:
-                fx, fy, fz = 0.0, e1z, -e1y  # e1 x (1, 0, 0)
-            fn = math.sqrt(fx * fx + fy * fy + fz * fz)
-            e2x, e2y, e2z = fx / fn, fy / fn, fz / fn
-        else:
-            inv = 1.0 / l_perp
-            e2x, e2y, e2z = px * inv, py * inv, pz * inv
-        alpha, beta = o_norm / radius, l_norm / radius
-        cp, sp = l_par * inv_n, l_perp * inv_n
-        outside = alpha > 1 and beta > 1
-        a, b = (alpha, beta) if outside else (2.0, 2.0)
-        ct, st = _root(a, b, cp, sp)
-        nx, ny, nz = ct * e1x + st * e2x, ct * e1y + st * e2y, ct * e1z + st * e2z
-        X, Y, Z = cx + radius * nx, cy + radius * ny, cz + radius * nz
-        c1 = cp * ct + sp * st
+        (outside, a, b, ct, st, c1, e2x, e2y, e2z, nx, ny, nz, X, Y, Z) = _sphere_reflection(
+            radius, cx, cy, cz, o_norm, e1x, e1y, e1z, lx, ly, lz)
         ok = outside and a * ct > 1 and b * c1 > 1
         if use_cap:
             ok = ok and nx * ax + ny * ay + nz * az >= cap_cos_min
@@ -190,18 +202,21 @@ def _jacobian_camera(fx, fy, radius, a, b, ct, st, c1, e1x, e1y, e1z, e2x, e2y, 
     return u0, u1, u2, v0, v1, v2
 
 
+#: One light's reflection on the sphere in camera axes (:func:`_sphere_reflection`), for
+#: callers outside this package: :mod:`estimator.cornea.scalar`'s float fit runs where the JIT
+#: is off, and takes this plain-Python form (the same lines as the compiled kernels'; Python's
+#: arithmetic raises where Numba's carries infinities).
+sphere_reflection = _sphere_reflection
+
 if ENABLED:
     _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
     _condition = _jit(_condition)
     _root = _jit(_root)
+    _sphere_reflection = _jit(_sphere_reflection)
     _jacobian_camera = _jit(_jacobian_camera)
     _jacobian_rows = _jit(_jacobian_rows)
     glints_kernel = _jit(glints_kernel)
 
-#: (cos θ, sin θ) of one (pose, light) pair's root of the reflection condition, for callers
-#: outside this package: :mod:`estimator.cornea.scalar`'s float fit runs where the JIT is off,
-#: and takes this plain-Python form (the same lines as the compiled kernels').
-reflection_root = _root
 #: One pair's d glint / d centre rows in camera axes, for the same callers.
 jacobian_in_camera = _jacobian_camera
 
