@@ -377,6 +377,7 @@ def sample_reasons(folder: Path, frames: int, t, pos) -> tuple[list, np.ndarray,
     it leaves out (:mod:`estimator.events.quality`)."""
     from estimator.events import SampleGate
     from estimator.events.files import samples_left_out
+    from estimator.events.quality import disagree_with_neighbours
     from estimator.tracking import read_samples_csv
 
     path = Path(folder) / f"samples_{frames}.csv"
@@ -384,8 +385,7 @@ def sample_reasons(folder: Path, frames: int, t, pos) -> tuple[list, np.ndarray,
     if len(rows) != np.asarray(t).size:
         raise ValueError(f"{path}: {len(rows)} rows for {np.asarray(t).size} samples")
     flagged = samples_left_out(rows, t, pos, replace(SampleGate(), neighbour_check=False), path)
-    return ([r["reason"] for r in rows], flagged,
-            samples_left_out(rows, t, pos, SampleGate(), path))
+    return [r["reason"] for r in rows], flagged, disagree_with_neighbours(t, pos, flagged)
 
 
 def invalid_reasons(reasons) -> list:
